@@ -1,0 +1,121 @@
+//! The `Mesh` type (vertices, triangles, optional normals, named vertex groups) and what
+//! is computed from one mesh alone: bounding box, normals, file io, landmarks, topology,
+//! and the quality figures of Ju et al. 2004, section 3.1.
+
+pub mod io;
+pub mod landmarks;
+pub mod quality;
+pub mod topology;
+
+use nalgebra::Vector3;
+use std::collections::BTreeMap;
+
+/// A 3-vector of `f64`, the geometry type used throughout conformd.
+pub type V3 = Vector3<f64>;
+
+pub use io::{MeshError, read_mesh, write_mesh};
+pub use landmarks::{Landmark, LandmarkError, LandmarkPos, read_landmarks};
+
+/// A triangle mesh or, with no triangles, a point cloud.
+///
+/// - `vertices`   #V list of positions
+/// - `triangles`  #F list of vertex index triples, counter-clockwise seen from outside
+/// - `normals`    optional #V list of unit normals (point clouds from scanners carry them)
+/// - `groups`     named vertex groups (head, ears, legs...), sorted vertex indices
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Mesh {
+    pub vertices: Vec<V3>,
+    pub triangles: Vec<[u32; 3]>,
+    pub normals: Option<Vec<V3>>,
+    pub groups: BTreeMap<String, Vec<u32>>,
+}
+
+impl Mesh {
+    pub fn new(vertices: Vec<V3>, triangles: Vec<[u32; 3]>) -> Self {
+        Mesh { vertices, triangles, normals: None, groups: BTreeMap::new() }
+    }
+
+    pub fn is_point_cloud(&self) -> bool {
+        self.triangles.is_empty()
+    }
+
+    /// Axis-aligned bounding box `(min, max)`; `None` for an empty mesh.
+    pub fn bounding_box(&self) -> Option<(V3, V3)> {
+        let first = *self.vertices.first()?;
+        Some(self.vertices.iter().fold((first, first), |(lo, hi), v| (lo.inf(v), hi.sup(v))))
+    }
+
+    /// Length of the bounding-box diagonal (0 for an empty mesh). Conformation tolerances
+    /// are expressed relative to it so one config serves millimetres or metres.
+    pub fn diagonal(&self) -> f64 {
+        self.bounding_box().map_or(0.0, |(lo, hi)| (hi - lo).norm())
+    }
+
+    pub fn centroid(&self) -> V3 {
+        if self.vertices.is_empty() {
+            return V3::zeros();
+        }
+        self.vertices.iter().sum::<V3>() / self.vertices.len() as f64
+    }
+
+    /// Positions of one triangle's corners.
+    pub fn corners(&self, t: usize) -> [V3; 3] {
+        let [a, b, c] = self.triangles[t];
+        [self.vertices[a as usize], self.vertices[b as usize], self.vertices[c as usize]]
+    }
+
+    /// Unnormalised triangle normal (length = twice the area).
+    pub fn face_normal_scaled(&self, t: usize) -> V3 {
+        let [a, b, c] = self.corners(t);
+        (b - a).cross(&(c - a))
+    }
+
+    /// Area-weighted vertex normals, unit length (zero for isolated vertices).
+    pub fn vertex_normals(&self) -> Vec<V3> {
+        vertex_normals(&self.vertices, &self.triangles)
+    }
+
+    /// Total surface area.
+    pub fn area(&self) -> f64 {
+        (0..self.triangles.len()).map(|t| 0.5 * self.face_normal_scaled(t).norm()).sum()
+    }
+
+    /// Checks that every index is in range and every coordinate finite; `what` names the
+    /// mesh in the error.
+    pub fn validate(&self, what: &str) -> Result<(), String> {
+        let n = self.vertices.len() as u32;
+        if let Some(i) = self.vertices.iter().position(|v| !v.iter().all(|c| c.is_finite())) {
+            return Err(format!("{what}: vertex {i} has a non-finite coordinate"));
+        }
+        if let Some(t) = self.triangles.iter().position(|t| t.iter().any(|&i| i >= n)) {
+            return Err(format!(
+                "{what}: triangle {t} refers to a vertex index out of range (the mesh has {n} vertices)"
+            ));
+        }
+        if let Some(ns) = &self.normals {
+            if ns.len() != self.vertices.len() {
+                return Err(format!("{what}: {} normals for {} vertices", ns.len(), n));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Area-weighted unit vertex normals of positions `v` (#V) and triangles `f` (#F).
+pub fn vertex_normals(v: &[V3], f: &[[u32; 3]]) -> Vec<V3> {
+    let mut n = vec![V3::zeros(); v.len()];
+    for t in f {
+        let [a, b, c] = t.map(|i| i as usize);
+        let fn_ = (v[b] - v[a]).cross(&(v[c] - v[a]));
+        n[a] += fn_;
+        n[b] += fn_;
+        n[c] += fn_;
+    }
+    for x in &mut n {
+        let l = x.norm();
+        if l > 0.0 {
+            *x /= l;
+        }
+    }
+    n
+}

@@ -1,0 +1,193 @@
+//! Connectivity of a triangle mesh: vertex neighbours, edges with their triangle counts,
+//! boundary loops, connected components, and the watertight / manifold checks.
+
+use super::Mesh;
+use std::collections::HashMap;
+
+/// Sorted, de-duplicated neighbour lists: #V lists of vertex indices.
+pub fn vertex_neighbours(nv: usize, tris: &[[u32; 3]]) -> Vec<Vec<u32>> {
+    let mut nb: Vec<Vec<u32>> = vec![Vec::new(); nv];
+    for t in tris {
+        for k in 0..3 {
+            let (a, b) = (t[k], t[(k + 1) % 3]);
+            nb[a as usize].push(b);
+            nb[b as usize].push(a);
+        }
+    }
+    for l in &mut nb {
+        l.sort_unstable();
+        l.dedup();
+    }
+    nb
+}
+
+/// Undirected edges `(a < b)` with the number of triangles using each, sorted.
+pub fn edge_face_counts(tris: &[[u32; 3]]) -> Vec<([u32; 2], u32)> {
+    let mut m: HashMap<[u32; 2], u32> = HashMap::with_capacity(tris.len() * 2);
+    for t in tris {
+        for k in 0..3 {
+            let (a, b) = (t[k], t[(k + 1) % 3]);
+            *m.entry([a.min(b), a.max(b)]).or_insert(0) += 1;
+        }
+    }
+    let mut v: Vec<_> = m.into_iter().collect();
+    v.sort_unstable();
+    v
+}
+
+/// Unique undirected edges `(a < b)`, sorted.
+pub fn edges(tris: &[[u32; 3]]) -> Vec<[u32; 2]> {
+    edge_face_counts(tris).into_iter().map(|(e, _)| e).collect()
+}
+
+/// Closed loops of boundary edges (edges used by exactly one triangle), each as a vertex
+/// sequence following the triangles' orientation. Non-manifold boundary vertices may
+/// split loops arbitrarily.
+pub fn boundary_loops(tris: &[[u32; 3]]) -> Vec<Vec<u32>> {
+    let counts: HashMap<[u32; 2], u32> = edge_face_counts(tris).into_iter().collect();
+    // directed boundary half-edges a -> b
+    let mut next: HashMap<u32, Vec<u32>> = HashMap::new();
+    for t in tris {
+        for k in 0..3 {
+            let (a, b) = (t[k], t[(k + 1) % 3]);
+            if counts[&[a.min(b), a.max(b)]] == 1 {
+                next.entry(a).or_default().push(b);
+            }
+        }
+    }
+    let mut starts: Vec<u32> = next.keys().copied().collect();
+    starts.sort_unstable();
+    let mut loops = Vec::new();
+    for s in starts {
+        while let Some(b) = next.get_mut(&s).and_then(|v| v.pop()) {
+            let mut lp = vec![s];
+            let mut cur = b;
+            while cur != s {
+                lp.push(cur);
+                match next.get_mut(&cur).and_then(|v| v.pop()) {
+                    Some(n) => cur = n,
+                    None => break,
+                }
+                if lp.len() > tris.len() * 3 {
+                    break;
+                }
+            }
+            loops.push(lp);
+        }
+    }
+    loops
+}
+
+/// Vertices that lie on a boundary edge (#V flags).
+pub fn boundary_vertices(nv: usize, tris: &[[u32; 3]]) -> Vec<bool> {
+    let mut b = vec![false; nv];
+    for ([x, y], c) in edge_face_counts(tris) {
+        if c == 1 {
+            b[x as usize] = true;
+            b[y as usize] = true;
+        }
+    }
+    b
+}
+
+/// Connected components over triangle connectivity: (#V component label, count).
+/// Isolated vertices form components of their own.
+pub fn components(nv: usize, tris: &[[u32; 3]]) -> (Vec<u32>, usize) {
+    let mut parent: Vec<u32> = (0..nv as u32).collect();
+    fn find(p: &mut [u32], mut x: u32) -> u32 {
+        while p[x as usize] != x {
+            p[x as usize] = p[p[x as usize] as usize];
+            x = p[x as usize];
+        }
+        x
+    }
+    for t in tris {
+        for k in 1..3 {
+            let (a, b) = (find(&mut parent, t[0]), find(&mut parent, t[k]));
+            if a != b {
+                parent[a.max(b) as usize] = a.min(b);
+            }
+        }
+    }
+    let mut label = vec![u32::MAX; nv];
+    let mut map: HashMap<u32, u32> = HashMap::new();
+    for v in 0..nv as u32 {
+        let r = find(&mut parent, v);
+        let n = map.len() as u32;
+        label[v as usize] = *map.entry(r).or_insert(n);
+    }
+    (label, map.len())
+}
+
+/// A summary of a mesh's topology, as the CLI and tests report it.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct TopologyReport {
+    pub vertices: usize,
+    pub triangles: usize,
+    pub components: usize,
+    pub boundary_edges: usize,
+    pub non_manifold_edges: usize,
+    /// Edges whose two triangles traverse it in the same direction.
+    pub inconsistent_edges: usize,
+    pub degenerate_triangles: usize,
+    pub watertight: bool,
+}
+
+/// Checks a mesh: watertight means every edge has exactly two triangles that traverse it
+/// in opposite directions, and no triangle is degenerate.
+pub fn report(mesh: &Mesh) -> TopologyReport {
+    let tris = &mesh.triangles;
+    let mut directed: HashMap<(u32, u32), u32> = HashMap::with_capacity(tris.len() * 3);
+    for t in tris {
+        for k in 0..3 {
+            *directed.entry((t[k], t[(k + 1) % 3])).or_insert(0) += 1;
+        }
+    }
+    let counts = edge_face_counts(tris);
+    let boundary_edges = counts.iter().filter(|(_, c)| *c == 1).count();
+    let non_manifold_edges = counts.iter().filter(|(_, c)| *c > 2).count();
+    let inconsistent_edges = counts
+        .iter()
+        .filter(|([a, b], c)| *c == 2 && (directed.get(&(*a, *b)) != Some(&1) || directed.get(&(*b, *a)) != Some(&1)))
+        .count();
+    let degenerate_triangles = tris
+        .iter()
+        .enumerate()
+        .filter(|(i, t)| t[0] == t[1] || t[1] == t[2] || t[0] == t[2] || mesh.face_normal_scaled(*i).norm() == 0.0)
+        .count();
+    let (_, components) = components(mesh.vertices.len(), tris);
+    TopologyReport {
+        vertices: mesh.vertices.len(),
+        triangles: tris.len(),
+        components,
+        boundary_edges,
+        non_manifold_edges,
+        inconsistent_edges,
+        degenerate_triangles,
+        watertight: !tris.is_empty()
+            && boundary_edges == 0
+            && non_manifold_edges == 0
+            && inconsistent_edges == 0
+            && degenerate_triangles == 0,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mesh::V3;
+
+    #[test]
+    fn tetrahedron_is_watertight_and_open_one_is_not() {
+        let v = vec![V3::new(0., 0., 0.), V3::new(1., 0., 0.), V3::new(0., 1., 0.), V3::new(0., 0., 1.)];
+        let closed = Mesh::new(v.clone(), vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]);
+        assert!(report(&closed).watertight);
+        let open = Mesh::new(v, vec![[0, 2, 1], [0, 1, 3], [0, 3, 2]]);
+        let r = report(&open);
+        assert!(!r.watertight);
+        assert_eq!(r.boundary_edges, 3);
+        assert_eq!(boundary_loops(&open.triangles).len(), 1);
+        assert_eq!(boundary_loops(&open.triangles)[0].len(), 3);
+        assert_eq!(vertex_neighbours(4, &open.triangles)[0], vec![1, 2, 3]);
+    }
+}
