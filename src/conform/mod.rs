@@ -1,0 +1,558 @@
+//! Conformation of a generic template mesh onto a scan (Ju et al. 2004, sections 2.1-2.3):
+//! global mapping (landmark RBF, or automatic alignment), correspondence search, the
+//! elastic solve, grass-fire filling of missing data, the iteration driver and its report.
+//!
+//! Two methods share this driver:
+//! - `paper`: the paper as written: closest-point targets, springs that keep the original
+//!   edge vectors (equation 4), grass-fire targets treated as data.
+//! - `default`: rotation-aware springs (as-rigid-as-possible with cotangent weights and
+//!   smoothed rotations), a point-to-plane data term with soft landmark terms, and grass
+//!   fire that only sets the starting displacement of unmatched vertices.
+//!
+//! The result keeps the template's vertex order and triangles exactly.
+
+pub mod align;
+pub mod correspond;
+pub mod fill;
+pub mod rbf;
+pub mod solve;
+
+use crate::mesh::landmarks::{Landmark, LandmarkPos};
+use crate::mesh::quality::{self, Variation};
+use crate::mesh::transform::fit_similarity;
+use crate::mesh::{Mesh, V3, topology, vertex_normals};
+use correspond::{MatchLimits, ScanSurface};
+use nalgebra::{Matrix3, UnitQuaternion};
+use rayon::prelude::*;
+use std::collections::BTreeMap;
+use std::time::Instant;
+
+/// Which conformation method runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Method {
+    /// Ju et al. 2004 exactly as written
+    Paper,
+    /// conformd's method: rotation-aware springs, point-to-plane data, soft landmarks
+    Default,
+}
+
+impl std::str::FromStr for Method {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "paper" => Ok(Method::Paper),
+            "default" => Ok(Method::Default),
+            _ => Err(format!("unknown method '{s}' (expected 'paper' or 'default')")),
+        }
+    }
+}
+
+/// Options of a conformation; the `[conform]` part of a station config, or a
+/// `conform.toml` of its own. Distances are relative to the template's bounding-box
+/// diagonal after global mapping.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ConformOptions {
+    pub method: Method,
+    /// iteration limit
+    pub max_iterations: usize,
+    /// stop when the largest vertex update is below this (relative to the diagonal)
+    pub tolerance: f64,
+    /// spring weight (epsilon of equation 2) of the first iteration: stiff
+    pub epsilon_start: f64,
+    /// spring weight reached after `epsilon_steps` iterations: loose
+    pub epsilon_end: f64,
+    pub epsilon_steps: usize,
+    /// farthest match (relative)
+    pub max_distance: f64,
+    /// largest angle between template and scan normals for a match, degrees
+    pub max_normal_angle: f64,
+    /// weight of a landmark pair in the local fit (default method), against 1 for data
+    pub landmark_weight: f64,
+    /// share of point-to-point in the default method's data term (the rest is
+    /// point-to-plane); a little keeps vertices from drifting along flat regions
+    pub point_to_point: f64,
+    /// rotation fit / linear solve alternations per iteration (default method)
+    pub rotation_iterations: usize,
+    /// smooth each vertex's rotation over its neighbours (default method)
+    pub smooth_rotations: bool,
+    /// spring stiffness factor per named vertex group (the paper's section 3.2 remedy)
+    pub stiffness: BTreeMap<String, f64>,
+    /// relative regularisation of the landmark RBF (0 interpolates exactly)
+    pub rbf_smoothing: f64,
+    /// relative residual at which a linear solve stops
+    pub solver_tolerance: f64,
+    pub solver_max_iterations: usize,
+    pub align: align::AlignOptions,
+}
+
+impl Default for ConformOptions {
+    fn default() -> Self {
+        ConformOptions {
+            method: Method::Default,
+            max_iterations: 30,
+            tolerance: 2e-4,
+            epsilon_start: 20.0,
+            epsilon_end: 1.0,
+            epsilon_steps: 8,
+            max_distance: 0.05,
+            max_normal_angle: 60.0,
+            landmark_weight: 2.0,
+            point_to_point: 0.1,
+            rotation_iterations: 2,
+            smooth_rotations: true,
+            stiffness: BTreeMap::new(),
+            rbf_smoothing: 1e-6,
+            solver_tolerance: 1e-4,
+            solver_max_iterations: 300,
+            align: align::AlignOptions::default(),
+        }
+    }
+}
+
+impl ConformOptions {
+    /// The paper's method with settings that suit it.
+    pub fn paper() -> Self {
+        ConformOptions { method: Method::Paper, epsilon_start: 1.0, epsilon_end: 1.0, ..Default::default() }
+    }
+
+    /// Checks every value before work starts.
+    pub fn validate(&self) -> Result<(), ConformError> {
+        let bad = |m: String| Err(ConformError::Options(m));
+        let positive = [
+            ("tolerance", self.tolerance),
+            ("epsilon_start", self.epsilon_start),
+            ("epsilon_end", self.epsilon_end),
+            ("max_distance", self.max_distance),
+            ("solver_tolerance", self.solver_tolerance),
+        ];
+        for (name, v) in positive {
+            if !(v > 0.0 && v.is_finite()) {
+                return bad(format!("{name} must be a positive number, got {v}"));
+            }
+        }
+        if self.max_iterations == 0 {
+            return bad("max_iterations must be at least 1".into());
+        }
+        if !(0.0..=180.0).contains(&self.max_normal_angle) {
+            return bad(format!("max_normal_angle must be 0-180 degrees, got {}", self.max_normal_angle));
+        }
+        if !(0.0..=1.0).contains(&self.point_to_point) {
+            return bad(format!("point_to_point must be 0-1, got {}", self.point_to_point));
+        }
+        if !(self.landmark_weight >= 0.0 && self.landmark_weight.is_finite()) {
+            return bad(format!("landmark_weight must be 0 or more, got {}", self.landmark_weight));
+        }
+        if !(self.rbf_smoothing >= 0.0 && self.rbf_smoothing.is_finite()) {
+            return bad(format!("rbf_smoothing must be 0 or more, got {}", self.rbf_smoothing));
+        }
+        for (g, &k) in &self.stiffness {
+            if !(k > 0.0 && k.is_finite()) {
+                return bad(format!("stiffness of group '{g}' must be positive, got {k}"));
+            }
+        }
+        if !(0.3..=1.0).contains(&self.align.trim) {
+            return bad(format!("align.trim must be 0.3-1, got {}", self.align.trim));
+        }
+        Ok(())
+    }
+
+    fn epsilon(&self, it: usize) -> f64 {
+        if self.epsilon_steps <= 1 {
+            return self.epsilon_end;
+        }
+        let f = (it as f64 / (self.epsilon_steps - 1) as f64).min(1.0);
+        self.epsilon_start * (self.epsilon_end / self.epsilon_start).powf(f)
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum ConformError {
+    #[error("template: {0}")]
+    Template(String),
+    #[error("scan: {0}")]
+    Scan(#[from] correspond::ScanError),
+    #[error("landmarks: {0}")]
+    Landmarks(String),
+    #[error("landmarks: {0}")]
+    Rbf(#[from] rbf::RbfError),
+    #[error("options: {0}")]
+    Options(String),
+}
+
+/// The figures of one iteration (the paper's section 3.1, plus fit figures).
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct IterationReport {
+    pub iteration: usize,
+    pub epsilon: f64,
+    /// variations of edge length, angle and area against the original template
+    pub variation: Variation,
+    pub matched: usize,
+    /// vertices given a displacement by the grass fire
+    pub filled: usize,
+    /// vertices no match can reach (a component with no data)
+    pub unreachable: usize,
+    /// mean distance of the matched vertices of this iteration's result to the scan
+    pub mean_distance: f64,
+    pub mean_distance_relative: f64,
+    /// largest vertex update of this iteration, scan units and relative
+    pub max_update: f64,
+    pub max_update_relative: f64,
+    pub solver_iterations: usize,
+    pub seconds: f64,
+}
+
+/// Where the time went, seconds.
+#[derive(Debug, Clone, Default, serde::Serialize)]
+pub struct StageTimes {
+    pub setup: f64,
+    pub global: f64,
+    pub correspond: f64,
+    pub fill: f64,
+    pub rotations: f64,
+    pub solve: f64,
+    pub total: f64,
+}
+
+/// How the template was first placed on the scan.
+#[derive(Debug, Clone, serde::Serialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum GlobalReport {
+    LandmarkRbf { pairs: Vec<String>, unpaired: Vec<String> },
+    Automatic(align::AlignReport),
+}
+
+/// The whole report of a conformation, written as JSON by the CLI.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct ConformReport {
+    pub method: Method,
+    pub template_vertices: usize,
+    pub template_triangles: usize,
+    pub scan_points: usize,
+    pub scan_is_mesh: bool,
+    pub global: GlobalReport,
+    pub iterations: Vec<IterationReport>,
+    pub converged: bool,
+    /// figures of the result: against the original template
+    pub final_variation: Variation,
+    pub folded_triangles: usize,
+    pub matched: usize,
+    pub filled: usize,
+    pub mean_distance: f64,
+    pub mean_distance_relative: f64,
+    /// RMS distance of landmark vertices to their scan landmarks, when landmarks were used
+    pub landmark_rms: Option<f64>,
+    pub watertight_template: bool,
+    pub watertight_result: bool,
+    pub seconds: StageTimes,
+}
+
+/// A conformed mesh and its report.
+pub struct Conformed {
+    pub mesh: Mesh,
+    pub report: ConformReport,
+}
+
+/// Landmark pairs by name: template vertex index and scan point.
+struct Pairs {
+    names: Vec<String>,
+    vertex: Vec<u32>,
+    target: Vec<V3>,
+    unpaired: Vec<String>,
+}
+
+fn pair_landmarks(tl: &[Landmark], sl: &[Landmark], template: &Mesh, scan: &Mesh) -> Result<Pairs, ConformError> {
+    let mut p = Pairs { names: vec![], vertex: vec![], target: vec![], unpaired: vec![] };
+    for t in tl {
+        let Some(s) = sl.iter().find(|s| s.name == t.name) else {
+            p.unpaired.push(t.name.clone());
+            continue;
+        };
+        let v = match t.pos {
+            LandmarkPos::Vertex(i) if (i as usize) < template.vertices.len() => i,
+            LandmarkPos::Vertex(i) => {
+                return Err(ConformError::Landmarks(format!(
+                    "template landmark '{}' names vertex {i}, but the template has {} vertices",
+                    t.name,
+                    template.vertices.len()
+                )));
+            }
+            LandmarkPos::Point(q) => nearest_vertex(&template.vertices, &q),
+        };
+        let target = match s.pos {
+            LandmarkPos::Point(q) => q,
+            LandmarkPos::Vertex(i) => *scan.vertices.get(i as usize).ok_or_else(|| {
+                ConformError::Landmarks(format!(
+                    "scan landmark '{}' names vertex {i}, but the scan has {} points",
+                    s.name,
+                    scan.vertices.len()
+                ))
+            })?,
+        };
+        if !target.iter().all(|c| c.is_finite()) {
+            return Err(ConformError::Landmarks(format!("scan landmark '{}' has a non-finite coordinate", s.name)));
+        }
+        p.names.push(t.name.clone());
+        p.vertex.push(v);
+        p.target.push(target);
+    }
+    p.unpaired.extend(sl.iter().filter(|s| !tl.iter().any(|t| t.name == s.name)).map(|s| s.name.clone()));
+    Ok(p)
+}
+
+fn nearest_vertex(v: &[V3], q: &V3) -> u32 {
+    (0..v.len()).min_by(|&a, &b| (v[a] - q).norm_squared().total_cmp(&(v[b] - q).norm_squared())).unwrap_or(0) as u32
+}
+
+/// Conforms `template` onto `scan`.
+///
+/// - `template`: a triangle mesh (#V vertices, #F triangles), optionally with groups
+/// - `scan`: a mesh with holes or a point cloud (normals used when present)
+/// - `landmarks`: template and scan landmarks, paired by name; `None` aligns automatically
+/// - `progress`: called after every iteration
+///
+/// Returns a mesh with the template's #V vertices in the same order and its #F triangles,
+/// shaped like the scan, and the report. Example: `tests/paper_cases.rs`.
+pub fn conform(
+    template: &Mesh,
+    scan: &Mesh,
+    landmarks: Option<(&[Landmark], &[Landmark])>,
+    opts: &ConformOptions,
+    progress: &mut dyn FnMut(&IterationReport),
+) -> Result<Conformed, ConformError> {
+    let t_start = Instant::now();
+    opts.validate()?;
+    if template.triangles.is_empty() {
+        return Err(ConformError::Template("has no triangles (a template must be a triangle mesh)".into()));
+    }
+    template.validate("template").map_err(ConformError::Template)?;
+    if let Some(g) = opts.stiffness.keys().find(|g| !template.groups.contains_key(*g)) {
+        return Err(ConformError::Options(format!(
+            "stiffness names group '{g}', which the template does not have (it has: {})",
+            template.groups.keys().cloned().collect::<Vec<_>>().join(", ")
+        )));
+    }
+    let surface = ScanSurface::new(scan)?;
+    let n = template.vertices.len();
+    let mut times = StageTimes { setup: t_start.elapsed().as_secs_f64(), ..Default::default() };
+
+    // 1. Global mapping.
+    let t0 = Instant::now();
+    let pairs = match landmarks {
+        Some((tl, sl)) => Some(pair_landmarks(tl, sl, template, scan)?),
+        None => None,
+    };
+    let (mut x, global_sim, global_report) = match &pairs {
+        Some(p) => {
+            let src: Vec<V3> = p.vertex.iter().map(|&i| template.vertices[i as usize]).collect();
+            let map = rbf::fit(&p.names, &src, &p.target, opts.rbf_smoothing)?;
+            let mapped: Vec<V3> = template.vertices.par_iter().map(|v| map.apply(v)).collect();
+            let sim = fit_similarity(&template.vertices, &mapped, None, true);
+            (mapped, sim, GlobalReport::LandmarkRbf { pairs: p.names.clone(), unpaired: p.unpaired.clone() })
+        }
+        None => {
+            let (sim, rep) = align::auto_align(&template.vertices, &surface, &opts.align);
+            (template.vertices.iter().map(|v| sim.apply(v)).collect(), sim, GlobalReport::Automatic(rep))
+        }
+    };
+    times.global = t0.elapsed().as_secs_f64();
+
+    // The springs' rest shape: the template under the global similarity, so that a
+    // scan in other units or another place does not load the springs.
+    let rest: Vec<V3> = template.vertices.iter().map(|v| global_sim.apply(v)).collect();
+    let rest_mesh = Mesh::new(rest.clone(), template.triangles.clone());
+    let diag = rest_mesh.diagonal();
+    let neighbours = topology::vertex_neighbours(n, &template.triangles);
+    let mut stiff = vec![1.0f64; n];
+    for (g, &k) in &opts.stiffness {
+        for &v in &template.groups[g] {
+            stiff[v as usize] = stiff[v as usize].max(k);
+        }
+    }
+    let default_method = opts.method == Method::Default;
+    let lap = solve::laplacian(&rest, &template.triangles, default_method, &stiff);
+    // Springs are scaled so that epsilon means the same for either weighting.
+    let mean_diag = lap.diag.iter().sum::<f64>() / n as f64;
+    let lap = solve::Laplacian { weights: lap.weights.map(|w| w / mean_diag), diag: lap.diag.iter().map(|d| d / mean_diag).collect() };
+    let limits = MatchLimits {
+        max_distance: opts.max_distance * diag,
+        min_normal_cos: opts.max_normal_angle.to_radians().cos(),
+    };
+    let mut landmark_weight = vec![0.0; n];
+    let mut landmark_target = vec![V3::zeros(); n];
+    if let (Some(p), true) = (&pairs, default_method) {
+        for (&v, t) in p.vertex.iter().zip(&p.target) {
+            landmark_weight[v as usize] += opts.landmark_weight;
+            landmark_target[v as usize] += t * opts.landmark_weight;
+        }
+        for v in 0..n {
+            if landmark_weight[v] > 0.0 {
+                landmark_target[v] /= landmark_weight[v];
+            }
+        }
+    }
+    let mut rot = vec![UnitQuaternion::identity(); n];
+    let mut reports: Vec<IterationReport> = Vec::new();
+    let mut converged = false;
+
+    for it in 0..opts.max_iterations {
+        let t_it = Instant::now();
+        let eps = opts.epsilon(it);
+
+        // 2. Correspondence.
+        let t = Instant::now();
+        let normals = vertex_normals(&x, &template.triangles);
+        let matches: Vec<_> = x.par_iter().zip(&normals).map(|(p, nv)| surface.query(p, nv, &limits)).collect();
+        times.correspond += t.elapsed().as_secs_f64();
+        let summary = MatchSummary::of(&matches);
+        if let Some(prev) = reports.last_mut() {
+            prev.mean_distance = summary.mean_distance;
+            prev.mean_distance_relative = summary.mean_distance / diag;
+        }
+
+        // 3. Grass fire.
+        let t = Instant::now();
+        let matched: Vec<bool> = matches.iter().map(Option::is_some).collect();
+        let mut disp: Vec<V3> = matches.iter().zip(&x).map(|(m, p)| m.map_or(V3::zeros(), |m| m.point - p)).collect();
+        let ring = fill::grass_fire(&neighbours, &matched, &mut disp);
+        let filled = ring.iter().filter(|&&r| r != 0 && r != u32::MAX).count();
+        let unreachable = ring.iter().filter(|&&r| r == u32::MAX).count();
+        times.fill += t.elapsed().as_secs_f64();
+
+        // 4. Elastic solve.
+        let x_prev = x.clone();
+        let mean_w = {
+            let (s, c) = matches.iter().flatten().fold((0.0, 0usize), |(s, c), m| (s + m.weight, c + 1));
+            if c > 0 { s / c as f64 } else { 1.0 }
+        };
+        // A whisper of anchoring to the previous positions keeps the system positive
+        // definite when a whole component has no data.
+        let anchor = 1e-6 * mean_w;
+        let mut solver_iterations = 0;
+        if default_method {
+            let d: Vec<f64> = (0..n)
+                .map(|i| matches[i].map_or(0.0, |m| m.weight) + landmark_weight[i] + anchor)
+                .collect();
+            // Start from the grass-fire displacement: unmatched vertices carry no data
+            // weight, so the rotation-aware springs alone shape the holes.
+            let mut xc: Vec<V3> = (0..n).map(|i| if matched[i] { x[i] } else { x[i] + disp[i] }).collect();
+            for _ in 0..opts.rotation_iterations.max(1) {
+                let t = Instant::now();
+                solve::fit_rotations(&lap, &rest, &xc, opts.smooth_rotations, &mut rot);
+                let rm: Vec<Matrix3<f64>> = rot.iter().map(|q| *q.to_rotation_matrix().matrix()).collect();
+                let springs = lap.rotated_rest(&rest, Some(&rm));
+                times.rotations += t.elapsed().as_secs_f64();
+                let t = Instant::now();
+                let b: Vec<V3> = (0..n)
+                    .into_par_iter()
+                    .map(|i| {
+                        let mut b = springs[i] * eps + x_prev[i] * anchor + landmark_target[i] * landmark_weight[i];
+                        if let Some(m) = &matches[i] {
+                            // point-to-plane: the foot of the current position on the
+                            // scan's tangent plane, blended with the point itself
+                            let foot = xc[i] - m.normal * m.normal.dot(&(xc[i] - m.point));
+                            b += (foot * (1.0 - opts.point_to_point) + m.point * opts.point_to_point) * m.weight;
+                        }
+                        b
+                    })
+                    .collect();
+                let st = solve::pcg(&lap, eps, &d, &b, &mut xc, opts.solver_tolerance, opts.solver_max_iterations);
+                solver_iterations += st.iterations;
+                times.solve += t.elapsed().as_secs_f64();
+            }
+            x = xc;
+        } else {
+            let t = Instant::now();
+            // The paper: every vertex labelled TRUE (matched, or filled by the grass
+            // fire) is attracted to its target; springs keep the original edge vectors.
+            let d: Vec<f64> = (0..n)
+                .map(|i| match (&matches[i], ring[i]) {
+                    (Some(m), _) => m.weight + anchor,
+                    (None, r) if r != u32::MAX => mean_w + anchor,
+                    _ => anchor,
+                })
+                .collect();
+            let springs = lap.rotated_rest(&rest, None);
+            let b: Vec<V3> = (0..n).map(|i| springs[i] * eps + (x[i] + disp[i]) * (d[i] - anchor) + x[i] * anchor).collect();
+            let st = solve::pcg(&lap, eps, &d, &b, &mut x, opts.solver_tolerance, opts.solver_max_iterations);
+            solver_iterations = st.iterations;
+            times.solve += t.elapsed().as_secs_f64();
+        }
+
+        let max_update = x.iter().zip(&x_prev).map(|(a, b)| (a - b).norm()).fold(0.0, f64::max);
+        let rep = IterationReport {
+            iteration: it + 1,
+            epsilon: eps,
+            variation: quality::variation(&template.vertices, &x, &template.triangles),
+            matched: summary.matched,
+            filled,
+            unreachable,
+            mean_distance: f64::NAN,
+            mean_distance_relative: f64::NAN,
+            max_update,
+            max_update_relative: max_update / diag,
+            solver_iterations,
+            seconds: t_it.elapsed().as_secs_f64(),
+        };
+        progress(&rep);
+        reports.push(rep);
+        if max_update < opts.tolerance * diag && it + 1 >= opts.epsilon_steps {
+            converged = true;
+            break;
+        }
+    }
+
+    // The distance of the final result to the scan.
+    let t = Instant::now();
+    let normals = vertex_normals(&x, &template.triangles);
+    let final_matches: Vec<_> = x.par_iter().zip(&normals).map(|(p, nv)| surface.query(p, nv, &limits)).collect();
+    let fin = MatchSummary::of(&final_matches);
+    times.correspond += t.elapsed().as_secs_f64();
+    if let Some(r) = reports.last_mut() {
+        r.mean_distance = fin.mean_distance;
+        r.mean_distance_relative = fin.mean_distance / diag;
+    }
+    let mut mesh = Mesh::new(x, template.triangles.clone());
+    mesh.groups = template.groups.clone();
+    mesh.normals = Some(normals);
+    let landmark_rms = pairs.as_ref().filter(|p| !p.names.is_empty()).map(|p| {
+        let s: f64 = p.vertex.iter().zip(&p.target).map(|(&v, t)| (mesh.vertices[v as usize] - t).norm_squared()).sum();
+        (s / p.names.len() as f64).sqrt()
+    });
+    times.total = t_start.elapsed().as_secs_f64();
+    let report = ConformReport {
+        method: opts.method,
+        template_vertices: n,
+        template_triangles: template.triangles.len(),
+        scan_points: scan.vertices.len(),
+        scan_is_mesh: !scan.triangles.is_empty(),
+        global: global_report,
+        converged,
+        final_variation: quality::variation(&template.vertices, &mesh.vertices, &template.triangles),
+        folded_triangles: quality::folded_triangles(&mesh),
+        matched: fin.matched,
+        filled: n - fin.matched,
+        mean_distance: fin.mean_distance,
+        mean_distance_relative: fin.mean_distance / diag,
+        landmark_rms,
+        watertight_template: topology::report(template).watertight,
+        watertight_result: topology::report(&mesh).watertight,
+        iterations: reports,
+        seconds: times,
+    };
+    Ok(Conformed { mesh, report })
+}
+
+#[derive(Debug, Clone, Copy)]
+struct MatchSummary {
+    matched: usize,
+    mean_distance: f64,
+}
+
+impl MatchSummary {
+    fn of(m: &[Option<correspond::Match>]) -> Self {
+        let (s, c) = m.iter().flatten().fold((0.0, 0usize), |(s, c), m| (s + m.distance, c + 1));
+        MatchSummary { matched: c, mean_distance: if c > 0 { s / c as f64 } else { f64::NAN } }
+    }
+}

@@ -6,6 +6,7 @@ pub mod io;
 pub mod landmarks;
 pub mod quality;
 pub mod topology;
+pub mod transform;
 
 use nalgebra::Vector3;
 use std::collections::BTreeMap;

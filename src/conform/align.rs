@@ -1,0 +1,133 @@
+//! Automatic global alignment when the scan has no landmarks (an unattended station):
+//! a similarity from centroids and principal axes, the axis-sign ambiguity resolved by
+//! trying every proper candidate, each refined by trimmed ICP; the best fit wins. Up-axis
+//! hints, when given, rule out candidates that turn the template upside down.
+
+use super::correspond::ScanSurface;
+use crate::mesh::V3;
+use crate::mesh::transform::{Similarity, fit_similarity};
+use kiddo::{ImmutableKdTree, SquaredEuclidean};
+use nalgebra::{Matrix3, Rotation3};
+
+/// Options of the automatic alignment.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct AlignOptions {
+    /// the template's up axis, in template coordinates
+    pub template_up: Option<[f64; 3]>,
+    /// the up axis of the scan (the rig's up), in scan coordinates
+    pub scan_up: Option<[f64; 3]>,
+    /// ICP iterations per candidate
+    pub icp_iterations: usize,
+    /// share of scan samples kept by the trimmed ICP (0.5 - 1)
+    pub trim: f64,
+}
+
+impl Default for AlignOptions {
+    fn default() -> Self {
+        AlignOptions { template_up: None, scan_up: None, icp_iterations: 40, trim: 0.85 }
+    }
+}
+
+/// Outcome of the automatic alignment.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct AlignReport {
+    pub candidates_tried: usize,
+    /// trimmed RMS distance of the winner, relative to the scan's diagonal
+    pub residual: f64,
+    /// the same for the runner-up: close figures mean the choice was ambiguous
+    pub runner_up_residual: Option<f64>,
+    pub scale: f64,
+}
+
+fn principal_frame(p: &[V3]) -> (V3, Matrix3<f64>, f64) {
+    let c = p.iter().sum::<V3>() / p.len() as f64;
+    let cov = p.iter().fold(Matrix3::zeros(), |m, q| m + (q - c) * (q - c).transpose()) / p.len() as f64;
+    let e = cov.symmetric_eigen();
+    // sort axes by decreasing variance
+    let mut idx = [0usize, 1, 2];
+    idx.sort_by(|&a, &b| e.eigenvalues[b].total_cmp(&e.eigenvalues[a]));
+    let mut m = Matrix3::from_columns(&[e.eigenvectors.column(idx[0]), e.eigenvectors.column(idx[1]), e.eigenvectors.column(idx[2])]);
+    if m.determinant() < 0.0 {
+        m.set_column(2, &(-m.column(2)));
+    }
+    (c, m, e.eigenvalues.sum().max(0.0).sqrt())
+}
+
+/// Finds the similarity taking the template (`template` positions) onto the scan.
+pub fn auto_align(template: &[V3], scan: &ScanSurface, opts: &AlignOptions) -> (Similarity, AlignReport) {
+    let step = (scan.points.len() / 3000).max(1);
+    let samples: Vec<V3> = scan.points.iter().step_by(step).copied().collect();
+    let arr: Vec<[f64; 3]> = template.iter().map(|p| [p.x, p.y, p.z]).collect();
+    let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&arr);
+
+    let (ct, ft, st) = principal_frame(template);
+    let (cs, fs, ss) = principal_frame(&samples);
+    let scale0 = ss / st;
+    let up = match (opts.template_up, opts.scan_up) {
+        (Some(a), Some(b)) => Some((V3::from(a).normalize(), V3::from(b).normalize())),
+        _ => None,
+    };
+    let mut results: Vec<(f64, Similarity)> = Vec::new();
+    for signs in [[1., 1., 1.], [1., -1., -1.], [-1., 1., -1.], [-1., -1., 1.]] {
+        let d = Matrix3::from_diagonal(&V3::from(signs));
+        let r = Rotation3::from_matrix_unchecked(fs * d * ft.transpose());
+        if let Some((tu, su)) = up {
+            if (r * tu).dot(&su) < 0.0 {
+                continue;
+            }
+        }
+        let init = Similarity { scale: scale0, rotation: r, translation: cs - r * ct * scale0 };
+        results.push(icp(&tree, template, &samples, init, opts, scan.diagonal));
+    }
+    if results.is_empty() {
+        // hints exclude everything only if they contradict the data; fall back to all
+        return auto_align(template, scan, &AlignOptions { template_up: None, scan_up: None, ..opts.clone() });
+    }
+    results.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let report = AlignReport {
+        candidates_tried: results.len(),
+        residual: results[0].0,
+        runner_up_residual: results.get(1).map(|r| r.0),
+        scale: results[0].1.scale,
+    };
+    (results[0].1, report)
+}
+
+/// Trimmed similarity ICP from scan samples to template vertices (scan to template, since
+/// every scan point has a counterpart on a whole template but not the reverse).
+fn icp(
+    tree: &ImmutableKdTree<f64, 3>,
+    template: &[V3],
+    samples: &[V3],
+    mut t: Similarity,
+    opts: &AlignOptions,
+    diag: f64,
+) -> (f64, Similarity) {
+    let mut residual = f64::INFINITY;
+    for _ in 0..opts.icp_iterations.max(1) {
+        let inv = t.inverse();
+        let mut pairs: Vec<(f64, usize, usize)> = samples
+            .iter()
+            .enumerate()
+            .map(|(i, s)| {
+                let q = inv.apply(s);
+                let nn = tree.nearest_one::<SquaredEuclidean>(&[q.x, q.y, q.z]);
+                (nn.distance, i, nn.item as usize)
+            })
+            .collect();
+        pairs.sort_by(|a, b| a.0.total_cmp(&b.0));
+        pairs.truncate(((pairs.len() as f64) * opts.trim.clamp(0.3, 1.0)) as usize);
+        let src: Vec<V3> = pairs.iter().map(|p| template[p.2]).collect();
+        let dst: Vec<V3> = pairs.iter().map(|p| samples[p.1]).collect();
+        let next = fit_similarity(&src, &dst, None, true);
+        let rms = (pairs.iter().map(|p| p.0).sum::<f64>() / pairs.len().max(1) as f64).sqrt() * t.scale / diag;
+        let moved = (next.translation - t.translation).norm() / diag + next.rotation.angle_to(&t.rotation);
+        residual = rms;
+        t = next;
+        if moved < 1e-7 {
+            break;
+        }
+    }
+    (residual, t)
+}

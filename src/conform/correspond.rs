@@ -1,0 +1,242 @@
+//! Correspondence search: for each template vertex, its most similar point on the scan
+//! (Ju et al. 2004, section 2.2): the closest point on the scan's triangles (a BVH, through
+//! parry) or, for a point cloud, the foot on the plane through the nearest points
+//! (kd-tree, through kiddo). A vertex whose best point is too far, faces the wrong way,
+//! or lies on the scan's boundary (off the edge of the data) has no match: FALSE in the
+//! paper's labelling, missing data.
+
+use crate::mesh::{Mesh, V3, topology};
+use kiddo::{ImmutableKdTree, SquaredEuclidean};
+use parry3d_f64::math::Vector as PVec;
+use parry3d_f64::query::PointQueryWithLocation;
+use parry3d_f64::shape::{TriMesh, TrianglePointLocation};
+use std::collections::HashSet;
+use std::num::NonZero;
+
+/// One match: the scan point, the scan's normal there, and the similarity weight `w_i`.
+#[derive(Debug, Clone, Copy)]
+pub struct Match {
+    pub point: V3,
+    pub normal: V3,
+    pub weight: f64,
+    pub distance: f64,
+}
+
+/// Limits on what counts as a match.
+#[derive(Debug, Clone, Copy)]
+pub struct MatchLimits {
+    /// farthest match, in scan units
+    pub max_distance: f64,
+    /// cosine of the largest angle between template and scan normals
+    pub min_normal_cos: f64,
+}
+
+enum Index {
+    Mesh {
+        tri: TriMesh,
+        face_normals: Vec<V3>,
+        vertex_normals: Vec<V3>,
+        boundary_vertex: Vec<bool>,
+        boundary_edge: HashSet<[u32; 2]>,
+    },
+    Cloud {
+        points: Vec<V3>,
+        normals: Vec<V3>,
+        /// normals estimated here have no reliable sign
+        oriented: bool,
+    },
+}
+
+/// A scan prepared for repeated closest-point queries.
+pub struct ScanSurface {
+    index: Index,
+    /// kd-tree over the scan's points (mesh vertices or cloud points)
+    tree: ImmutableKdTree<f64, 3>,
+    pub points: Vec<V3>,
+    /// median distance from a point to its nearest neighbour
+    pub spacing: f64,
+    pub diagonal: f64,
+}
+
+#[derive(Debug, Clone, thiserror::Error)]
+pub enum ScanError {
+    #[error("the scan is empty (no points)")]
+    Empty,
+    #[error("the scan has too few points ({0}); at least 16 are needed")]
+    TooFew(usize),
+    #[error("the scan is invalid: {0}")]
+    Invalid(String),
+}
+
+const CLOUD_K: usize = 8;
+
+impl ScanSurface {
+    /// Prepares a mesh scan (triangles) or a point cloud (no triangles; normals used when
+    /// present, estimated from 12 neighbours otherwise).
+    pub fn new(scan: &Mesh) -> Result<Self, ScanError> {
+        if scan.vertices.is_empty() {
+            return Err(ScanError::Empty);
+        }
+        scan.validate("scan").map_err(ScanError::Invalid)?;
+        if scan.vertices.len() < 16 {
+            return Err(ScanError::TooFew(scan.vertices.len()));
+        }
+        let points = scan.vertices.clone();
+        let arr: Vec<[f64; 3]> = points.iter().map(|p| [p.x, p.y, p.z]).collect();
+        let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&arr);
+        let diagonal = scan.diagonal();
+        let sample = points.len().min(2000);
+        let step = (points.len() / sample).max(1);
+        let mut nn: Vec<f64> = (0..points.len())
+            .step_by(step)
+            .map(|i| {
+                let r = tree.nearest_n::<SquaredEuclidean>(&arr[i], NonZero::new(2).unwrap());
+                r.get(1).map_or(0.0, |n| n.distance.sqrt())
+            })
+            .collect();
+        nn.sort_by(f64::total_cmp);
+        let spacing = nn[nn.len() / 2].max(diagonal * 1e-9);
+
+        let index = if scan.triangles.is_empty() {
+            let (normals, oriented) = match &scan.normals {
+                Some(n) if n.iter().all(|v| v.norm() > 0.5) => (n.clone(), true),
+                _ => (estimate_normals(&points, &tree), false),
+            };
+            Index::Cloud { points: points.clone(), normals, oriented }
+        } else {
+            let verts: Vec<PVec> = points.iter().map(|p| PVec::new(p.x, p.y, p.z)).collect();
+            let tri = TriMesh::new(verts, scan.triangles.clone())
+                .map_err(|e| ScanError::Invalid(format!("{e:?}")))?;
+            let face_normals =
+                (0..scan.triangles.len()).map(|t| scan.face_normal_scaled(t).try_normalize(0.0).unwrap_or_default()).collect();
+            let mut boundary_edge = HashSet::new();
+            for ([a, b], c) in topology::edge_face_counts(&scan.triangles) {
+                if c == 1 {
+                    boundary_edge.insert([a, b]);
+                }
+            }
+            Index::Mesh {
+                tri,
+                face_normals,
+                vertex_normals: scan.vertex_normals(),
+                boundary_vertex: topology::boundary_vertices(points.len(), &scan.triangles),
+                boundary_edge,
+            }
+        };
+        Ok(ScanSurface { index, tree, points, spacing, diagonal })
+    }
+
+    /// Nearest scan point (index, distance), for alignment.
+    pub fn nearest_point(&self, x: &V3) -> (usize, f64) {
+        let r = self.tree.nearest_one::<SquaredEuclidean>(&[x.x, x.y, x.z]);
+        (r.item as usize, r.distance.sqrt())
+    }
+
+    /// The most similar scan point for a template vertex at `x` with unit normal `n`, or
+    /// `None` (missing data). `w` falls with the normal disagreement and the distance.
+    pub fn query(&self, x: &V3, n: &V3, lim: &MatchLimits) -> Option<Match> {
+        if !x.iter().all(|c| c.is_finite()) {
+            return None;
+        }
+        let (point, normal, oriented) = match &self.index {
+            Index::Mesh { tri, face_normals, vertex_normals, boundary_vertex, boundary_edge } => {
+                let (proj, (t, loc)) = tri.project_local_point_and_get_location_with_max_dist(
+                    PVec::new(x.x, x.y, x.z),
+                    false,
+                    lim.max_distance,
+                )?;
+                let corners = tri.indices()[t as usize];
+                let on_boundary = match loc {
+                    TrianglePointLocation::OnVertex(i) => boundary_vertex[corners[i as usize] as usize],
+                    TrianglePointLocation::OnEdge(e, _) => {
+                        // parry's edge numbering: 0 = AB, 1 = BC, 2 = AC
+                        let (a, b) = match e {
+                            0 => (corners[0], corners[1]),
+                            1 => (corners[1], corners[2]),
+                            _ => (corners[0], corners[2]),
+                        };
+                        boundary_edge.contains(&[a.min(b), a.max(b)])
+                    }
+                    _ => false,
+                };
+                if on_boundary {
+                    return None;
+                }
+                let p = V3::new(proj.point.x, proj.point.y, proj.point.z);
+                let normal = match loc.barycentric_coordinates() {
+                    Some(bc) if !matches!(loc, TrianglePointLocation::OnFace(..)) => {
+                        let m = (0..3).map(|k| vertex_normals[corners[k] as usize] * bc[k]).sum::<V3>();
+                        m.try_normalize(0.0).unwrap_or(face_normals[t as usize])
+                    }
+                    _ => face_normals[t as usize],
+                };
+                (p, normal, true)
+            }
+            Index::Cloud { points, normals, oriented } => {
+                let nb = self.tree.nearest_n::<SquaredEuclidean>(&[x.x, x.y, x.z], NonZero::new(CLOUD_K).unwrap());
+                let first = nb.first()?;
+                if first.distance.sqrt() > lim.max_distance {
+                    return None;
+                }
+                let p0 = points[first.item as usize];
+                let n0 = normals[first.item as usize];
+                let mut c = V3::zeros();
+                let mut nsum = V3::zeros();
+                for m in &nb {
+                    let q = m.item as usize;
+                    c += points[q];
+                    let nq = normals[q];
+                    nsum += if nq.dot(&n0) < 0.0 { -nq } else { nq };
+                }
+                c /= nb.len() as f64;
+                let normal = nsum.try_normalize(0.0).unwrap_or(n0);
+                let foot = x - normal * normal.dot(&(x - c));
+                // The foot must lie where there is data: within the patch the neighbours
+                // span, else the vertex looks past the edge of a hole.
+                let reach = nb.last().map_or(0.0, |m| m.distance.sqrt()).max(self.spacing);
+                if (foot - p0).norm() > reach {
+                    return None;
+                }
+                (foot, normal, *oriented)
+            }
+        };
+        let distance = (point - x).norm();
+        if distance > lim.max_distance {
+            return None;
+        }
+        let mut cos = n.dot(&normal);
+        if !oriented {
+            cos = cos.abs();
+        }
+        if cos < lim.min_normal_cos {
+            return None;
+        }
+        let normal = if oriented || normal.dot(n) >= 0.0 { normal } else { -normal };
+        let d = distance / lim.max_distance;
+        let weight = cos.clamp(0.0, 1.0) * (1.0 - d * d).max(0.0);
+        (weight > 0.0).then_some(Match { point, normal, weight, distance })
+    }
+}
+
+/// Unit normals of a point cloud from the principal axes of each point's 12 nearest
+/// neighbours, turned to point away from the cloud's centroid (a guess: the sign is
+/// treated as unknown when matching).
+fn estimate_normals(points: &[V3], tree: &ImmutableKdTree<f64, 3>) -> Vec<V3> {
+    use rayon::prelude::*;
+    let centroid = points.iter().sum::<V3>() / points.len() as f64;
+    points
+        .par_iter()
+        .map(|p| {
+            let nb = tree.nearest_n::<SquaredEuclidean>(&[p.x, p.y, p.z], NonZero::new(12).unwrap());
+            let c = nb.iter().map(|m| points[m.item as usize]).sum::<V3>() / nb.len() as f64;
+            let cov = nb.iter().fold(nalgebra::Matrix3::zeros(), |acc, m| {
+                let d = points[m.item as usize] - c;
+                acc + d * d.transpose()
+            });
+            let eig = cov.symmetric_eigen();
+            let k = eig.eigenvalues.imin();
+            let n: V3 = eig.eigenvectors.column(k).into();
+            if n.dot(&(p - centroid)) < 0.0 { -n } else { n }
+        })
+        .collect()
+}
