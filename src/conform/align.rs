@@ -122,7 +122,7 @@ fn icp(
         let dst: Vec<V3> = pairs.iter().map(|p| samples[p.1]).collect();
         let next = fit_similarity(&src, &dst, None, true);
         let rms = (pairs.iter().map(|p| p.0).sum::<f64>() / pairs.len().max(1) as f64).sqrt() * t.scale / diag;
-        let moved = (next.translation - t.translation).norm() / diag + next.rotation.angle_to(&t.rotation);
+        let moved = (next.translation - t.translation).norm() / diag + (next.rotation.matrix() - t.rotation.matrix()).norm();
         residual = rms;
         t = next;
         if moved < 1e-7 {

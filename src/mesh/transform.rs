@@ -85,7 +85,7 @@ mod tests {
         let dst: Vec<V3> = src.iter().map(|p| t.apply(p)).collect();
         let f = fit_similarity(&src, &dst, None, true);
         assert!((f.scale - 1.7).abs() < 1e-9);
-        assert!(f.rotation.angle_to(&t.rotation) < 1e-7);
+        assert!((f.rotation.matrix() - t.rotation.matrix()).norm() < 1e-9);
         let back = f.inverse().apply(&dst[3]);
         assert!((back - src[3]).norm() < 1e-9);
     }
