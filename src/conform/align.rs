@@ -56,8 +56,13 @@ fn principal_frame(p: &[V3]) -> (V3, Matrix3<f64>, f64) {
 
 /// Finds the similarity taking the template (`template` positions) onto the scan.
 pub fn auto_align(template: &[V3], scan: &ScanSurface, opts: &AlignOptions) -> (Similarity, AlignReport) {
-    let step = (scan.points.len() / 3000).max(1);
-    let samples: Vec<V3> = scan.points.iter().step_by(step).copied().collect();
+    let subsample = |k: usize| -> Vec<V3> {
+        let step = (scan.points.len() / k).max(1);
+        scan.points.iter().step_by(step).copied().collect()
+    };
+    // candidates are told apart on a light sample; the winner is refined on a denser one
+    let samples = subsample(1000);
+    let fine = subsample(4000);
     let arr: Vec<[f64; 3]> = template.iter().map(|p| [p.x, p.y, p.z]).collect();
     let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&arr);
 
@@ -78,13 +83,15 @@ pub fn auto_align(template: &[V3], scan: &ScanSurface, opts: &AlignOptions) -> (
             }
         }
         let init = Similarity { scale: scale0, rotation: r, translation: cs - r * ct * scale0 };
-        results.push(icp(&tree, template, &samples, init, opts, scan.diagonal));
+        let quick = AlignOptions { icp_iterations: opts.icp_iterations / 2, ..opts.clone() };
+        results.push(icp(&tree, template, &samples, init, &quick, scan.diagonal));
     }
     if results.is_empty() {
         // hints exclude everything only if they contradict the data; fall back to all
         return auto_align(template, scan, &AlignOptions { template_up: None, scan_up: None, ..opts.clone() });
     }
     results.sort_by(|a, b| a.0.total_cmp(&b.0));
+    results[0] = icp(&tree, template, &fine, results[0].1, opts, scan.diagonal);
     let report = AlignReport {
         candidates_tried: results.len(),
         residual: results[0].0,

@@ -126,6 +126,15 @@ impl ScanSurface {
         Ok(ScanSurface { index, tree, points, spacing, diagonal })
     }
 
+    /// The scan's unit normal at point `i` (a mesh's vertex normal, or the cloud's given
+    /// or estimated normal).
+    pub fn normal(&self, i: usize) -> V3 {
+        match &self.index {
+            Index::Mesh { vertex_normals, .. } => vertex_normals[i],
+            Index::Cloud { normals, .. } => normals[i],
+        }
+    }
+
     /// Nearest scan point (index, distance), for alignment.
     pub fn nearest_point(&self, x: &V3) -> (usize, f64) {
         let r = self.tree.nearest_one::<SquaredEuclidean>(&[x.x, x.y, x.z]);

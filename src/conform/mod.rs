@@ -12,6 +12,7 @@
 //! The result keeps the template's vertex order and triangles exactly.
 
 pub mod align;
+pub mod coarse;
 pub mod correspond;
 pub mod fill;
 pub mod rbf;
@@ -48,6 +49,31 @@ impl std::str::FromStr for Method {
     }
 }
 
+/// When the coarse stage runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum CoarseStage {
+    Auto,
+    Always,
+    Never,
+}
+
+/// How springs behave where there is no data (default method).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum HoleSprings {
+    Rotated,
+    Translated,
+}
+
+/// What the springs hold the mesh to.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum RestShape {
+    Template,
+    Mapped,
+}
+
 /// Options of a conformation; the `[conform]` part of a station config, or a
 /// `conform.toml` of its own. Distances are relative to the template's bounding-box
 /// diagonal after global mapping.
@@ -64,7 +90,10 @@ pub struct ConformOptions {
     /// spring weight reached after `epsilon_steps` iterations: loose
     pub epsilon_end: f64,
     pub epsilon_steps: usize,
-    /// farthest match (relative)
+    /// farthest match (relative) in the first iteration: wide, to catch parts the global
+    /// mapping left far off
+    pub max_distance_start: f64,
+    /// farthest match (relative), reached after `epsilon_steps` iterations
     pub max_distance: f64,
     /// largest angle between template and scan normals for a match, degrees
     pub max_normal_angle: f64,
@@ -75,12 +104,33 @@ pub struct ConformOptions {
     pub point_to_point: f64,
     /// rotation fit / linear solve alternations per iteration (default method)
     pub rotation_iterations: usize,
-    /// smooth each vertex's rotation over its neighbours (default method)
-    pub smooth_rotations: bool,
+    /// rings of neighbours over which each vertex's rotation is fitted (default method);
+    /// 0 fits each vertex alone
+    pub rotation_rings: usize,
+    /// springs of vertices without data: `rotated` (as-rigid-as-possible, keeping the
+    /// template's local shape) or `translated` (the paper's springs: a smooth
+    /// displacement field across the hole)
+    pub hole_springs: HoleSprings,
+    /// let each vertex's springs also scale (as-similar-as-possible), up to this factor
+    /// either way; 1 keeps them rigid
+    pub local_scale_limit: f64,
     /// spring stiffness factor per named vertex group (the paper's section 3.2 remedy)
     pub stiffness: BTreeMap<String, f64>,
     /// relative regularisation of the landmark RBF (0 interpolates exactly)
     pub rbf_smoothing: f64,
+    /// the springs' rest shape: the template under the global similarity (`template`),
+    /// or the template as the global mapping left it (`mapped`)
+    pub rest: RestShape,
+    /// when the coarse deformation-graph stage runs (default method): `auto` when the
+    /// scan has no landmarks (the landmark mapping already places the parts), `always`,
+    /// or `never`
+    pub coarse: CoarseStage,
+    /// nodes of the coarse deformation graph
+    pub coarse_nodes: usize,
+    /// iterations of the coarse stage
+    pub coarse_iterations: usize,
+    /// weight of scan-to-template pulls in the coarse stage (0 = template-to-scan only)
+    pub scan_to_template: f64,
     /// relative residual at which a linear solve stops
     pub solver_tolerance: f64,
     pub solver_max_iterations: usize,
@@ -88,22 +138,31 @@ pub struct ConformOptions {
 }
 
 impl Default for ConformOptions {
+    /// Defaults measured on the articulated and box cases of `tests/` (see README).
     fn default() -> Self {
         ConformOptions {
             method: Method::Default,
-            max_iterations: 30,
+            max_iterations: 20,
             tolerance: 2e-4,
             epsilon_start: 20.0,
-            epsilon_end: 1.0,
-            epsilon_steps: 8,
-            max_distance: 0.05,
+            epsilon_end: 2.0,
+            epsilon_steps: 6,
+            max_distance_start: 0.2,
+            max_distance: 0.035,
             max_normal_angle: 60.0,
             landmark_weight: 2.0,
             point_to_point: 0.1,
-            rotation_iterations: 2,
-            smooth_rotations: true,
+            rotation_iterations: 3,
+            rotation_rings: 3,
+            hole_springs: HoleSprings::Rotated,
+            local_scale_limit: 1.5,
             stiffness: BTreeMap::new(),
             rbf_smoothing: 1e-6,
+            rest: RestShape::Template,
+            coarse: CoarseStage::Auto,
+            coarse_nodes: 300,
+            coarse_iterations: 30,
+            scan_to_template: 1.0,
             solver_tolerance: 1e-4,
             solver_max_iterations: 300,
             align: align::AlignOptions::default(),
@@ -114,7 +173,15 @@ impl Default for ConformOptions {
 impl ConformOptions {
     /// The paper's method with settings that suit it.
     pub fn paper() -> Self {
-        ConformOptions { method: Method::Paper, epsilon_start: 1.0, epsilon_end: 1.0, ..Default::default() }
+        ConformOptions {
+            method: Method::Paper,
+            max_iterations: 30,
+            epsilon_start: 1.0,
+            epsilon_end: 1.0,
+            max_distance_start: 0.05,
+            max_distance: 0.05,
+            ..Default::default()
+        }
     }
 
     /// Checks every value before work starts.
@@ -125,12 +192,16 @@ impl ConformOptions {
             ("epsilon_start", self.epsilon_start),
             ("epsilon_end", self.epsilon_end),
             ("max_distance", self.max_distance),
+            ("max_distance_start", self.max_distance_start),
             ("solver_tolerance", self.solver_tolerance),
         ];
         for (name, v) in positive {
             if !(v > 0.0 && v.is_finite()) {
                 return bad(format!("{name} must be a positive number, got {v}"));
             }
+        }
+        if !(self.local_scale_limit >= 1.0 && self.local_scale_limit.is_finite()) {
+            return bad(format!("local_scale_limit must be 1 or more, got {}", self.local_scale_limit));
         }
         if self.max_iterations == 0 {
             return bad("max_iterations must be at least 1".into());
@@ -158,12 +229,13 @@ impl ConformOptions {
         Ok(())
     }
 
-    fn epsilon(&self, it: usize) -> f64 {
+    /// Geometric progression from `start` to `end` over the first `epsilon_steps`.
+    fn schedule(&self, it: usize, start: f64, end: f64) -> f64 {
         if self.epsilon_steps <= 1 {
-            return self.epsilon_end;
+            return end;
         }
         let f = (it as f64 / (self.epsilon_steps - 1) as f64).min(1.0);
-        self.epsilon_start * (self.epsilon_end / self.epsilon_start).powf(f)
+        start * (end / start).powf(f)
     }
 }
 
@@ -208,6 +280,7 @@ pub struct IterationReport {
 pub struct StageTimes {
     pub setup: f64,
     pub global: f64,
+    pub coarse: f64,
     pub correspond: f64,
     pub fill: f64,
     pub rotations: f64,
@@ -360,7 +433,10 @@ pub fn conform(
 
     // The springs' rest shape: the template under the global similarity, so that a
     // scan in other units or another place does not load the springs.
-    let rest: Vec<V3> = template.vertices.iter().map(|v| global_sim.apply(v)).collect();
+    let rest: Vec<V3> = match opts.rest {
+        RestShape::Template => template.vertices.iter().map(|v| global_sim.apply(v)).collect(),
+        RestShape::Mapped => x.clone(),
+    };
     let rest_mesh = Mesh::new(rest.clone(), template.triangles.clone());
     let diag = rest_mesh.diagonal();
     let neighbours = topology::vertex_neighbours(n, &template.triangles);
@@ -393,12 +469,41 @@ pub fn conform(
         }
     }
     let mut rot = vec![UnitQuaternion::identity(); n];
+    let mut local_scale = vec![1.0; n];
+    let rest_norms = solve::smoothed_rest_norms(&lap, &rest, opts.rotation_rings);
+    let coarse_wanted = match opts.coarse {
+        CoarseStage::Auto => pairs.is_none(),
+        CoarseStage::Always => true,
+        CoarseStage::Never => false,
+    };
+    if default_method && coarse_wanted && opts.coarse_nodes > 0 && opts.coarse_iterations > 0 {
+        let t = Instant::now();
+        let graph = coarse::build(&rest, &neighbours, opts.coarse_nodes);
+        let settings = coarse::CoarseSettings {
+            iterations: opts.coarse_iterations,
+            epsilon_start: opts.epsilon_start,
+            epsilon_end: opts.epsilon_end,
+            max_distance_start: opts.max_distance_start,
+            max_distance_end: opts.max_distance,
+            min_normal_cos: limits.min_normal_cos,
+            point_to_point: opts.point_to_point,
+            scan_to_template: opts.scan_to_template,
+        };
+        let (xc, rc) = coarse::run(&graph, &rest, &x, &template.triangles, &surface, diag, &landmark_weight, &landmark_target, &settings);
+        x = xc;
+        rot = rc;
+        times.coarse = t.elapsed().as_secs_f64();
+    }
     let mut reports: Vec<IterationReport> = Vec::new();
     let mut converged = false;
 
     for it in 0..opts.max_iterations {
         let t_it = Instant::now();
-        let eps = opts.epsilon(it);
+        let eps = opts.schedule(it, opts.epsilon_start, opts.epsilon_end);
+        let limits = MatchLimits {
+            max_distance: opts.schedule(it, opts.max_distance_start, opts.max_distance) * diag,
+            ..limits
+        };
 
         // 2. Correspondence.
         let t = Instant::now();
@@ -439,8 +544,20 @@ pub fn conform(
             let mut xc: Vec<V3> = (0..n).map(|i| if matched[i] { x[i] } else { x[i] + disp[i] }).collect();
             for _ in 0..opts.rotation_iterations.max(1) {
                 let t = Instant::now();
-                solve::fit_rotations(&lap, &rest, &xc, opts.smooth_rotations, &mut rot);
-                let rm: Vec<Matrix3<f64>> = rot.iter().map(|q| *q.to_rotation_matrix().matrix()).collect();
+                let scale = (opts.local_scale_limit > 1.0).then_some((&mut local_scale[..], &rest_norms[..], opts.local_scale_limit));
+                solve::fit_rotations(&lap, &rest, &xc, opts.rotation_rings, &mut rot, scale);
+                let rm: Vec<Matrix3<f64>> = rot
+                    .iter()
+                    .zip(&matched)
+                    .zip(&local_scale)
+                    .map(|((q, &m), &s)| {
+                        if m || opts.hole_springs == HoleSprings::Rotated {
+                            q.to_rotation_matrix().matrix() * s
+                        } else {
+                            Matrix3::identity()
+                        }
+                    })
+                    .collect();
                 let springs = lap.rotated_rest(&rest, Some(&rm));
                 times.rotations += t.elapsed().as_secs_f64();
                 let t = Instant::now();

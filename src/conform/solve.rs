@@ -154,11 +154,20 @@ pub fn pcg(lap: &Laplacian, eps: f64, d: &[f64], b: &[V3], x: &mut [V3], rel_tol
 }
 
 /// Per-vertex best-fit rotations of the rest edges onto the current edges (the local
-/// step of as-rigid-as-possible), smoothed by summing each vertex's covariance with its
-/// neighbours' before extracting the rotation, so that a lone noisy vertex cannot twist.
+/// step of as-rigid-as-possible), smoothed by averaging each vertex's covariance over
+/// `rings` rings of neighbours before extracting the rotation: a lone noisy vertex cannot
+/// twist, and a rotation seen in one place (a landmark, a feature) spreads quickly.
 ///
 /// - `rest`, `cur`: #V positions; `rot`: #V rotations, warm start in and result out
-pub fn fit_rotations(lap: &Laplacian, rest: &[V3], cur: &[V3], smooth: bool, rot: &mut [UnitQuaternion<f64>]) {
+/// - `scale`: optional #V local scales (out) and their limit, for as-similar-as-possible
+pub fn fit_rotations(
+    lap: &Laplacian,
+    rest: &[V3],
+    cur: &[V3],
+    rings: usize,
+    rot: &mut [UnitQuaternion<f64>],
+    scale: Option<(&mut [f64], &[f64], f64)>,
+) {
     let (ip, idx, w) = (lap.weights.indptr(), lap.weights.indices(), lap.weights.data());
     let ip = ip.raw_storage();
     let n = rest.len();
@@ -174,16 +183,56 @@ pub fn fit_rotations(lap: &Laplacian, rest: &[V3], cur: &[V3], smooth: bool, rot
             a
         })
         .collect();
+    // Each ring of smoothing sums a vertex's covariance with its neighbours' (itself
+    // counted twice), widening the support over which one rotation is fitted.
+    let smooth_once = |m: &[Matrix3<f64>]| -> Vec<Matrix3<f64>> {
+        (0..n)
+            .into_par_iter()
+            .with_min_len(1024)
+            .map(|i| {
+                let mut a = m[i] * 2.0;
+                for k in ip[i]..ip[i + 1] {
+                    a += m[idx[k]];
+                }
+                a / (2.0 + (ip[i + 1] - ip[i]) as f64)
+            })
+            .collect()
+    };
+    let mut cov = cov;
+    for _ in 0..rings {
+        cov = smooth_once(&cov);
+    }
     rot.par_iter_mut().with_min_len(512).enumerate().for_each(|(i, q)| {
-        let mut a = cov[i];
-        if smooth {
-            a *= 2.0;
-            for k in ip[i]..ip[i + 1] {
-                a += cov[idx[k]];
-            }
-        }
-        *q = polar_rotation(&a, *q);
+        *q = polar_rotation(&cov[i], *q);
     });
+    // Local scale (as-similar-as-possible): s_i = tr(R_i^T A_i) / sum_j c_ij |rest edge|^2,
+    // over the same smoothed neighbourhood, clamped to [1/limit, limit].
+    if let Some((scale, sq, limit)) = scale {
+        scale.par_iter_mut().with_min_len(512).enumerate().for_each(|(i, s)| {
+            let d = sq[i];
+            let r = rot[i].to_rotation_matrix();
+            let t = (r.matrix().transpose() * cov[i]).trace();
+            *s = if d > 0.0 { (t / d).clamp(1.0 / limit, limit) } else { 1.0 };
+        });
+    }
+}
+
+/// Per vertex, `sum_j c_ij |rest_i - rest_j|^2` averaged over `rings` rings as
+/// `fit_rotations` averages covariances: the denominator of the local scale. Depends on
+/// the rest shape only, so it is computed once per conformation.
+pub fn smoothed_rest_norms(lap: &Laplacian, rest: &[V3], rings: usize) -> Vec<f64> {
+    let (ip, idx, w) = (lap.weights.indptr(), lap.weights.indices(), lap.weights.data());
+    let ip = ip.raw_storage();
+    let n = rest.len();
+    let mut sq: Vec<f64> = (0..n)
+        .map(|i| (ip[i]..ip[i + 1]).map(|k| w[k] * (rest[i] - rest[idx[k]]).norm_squared()).sum())
+        .collect();
+    for _ in 0..rings {
+        sq = (0..n)
+            .map(|i| (sq[i] * 2.0 + (ip[i]..ip[i + 1]).map(|k| sq[idx[k]]).sum::<f64>()) / (2.0 + (ip[i + 1] - ip[i]) as f64))
+            .collect();
+    }
+    sq
 }
 
 /// The rotation closest to `a` (maximising `tr(R^T a)`), by the iterative method of
@@ -194,14 +243,16 @@ pub fn polar_rotation(a: &Matrix3<f64>, mut q: UnitQuaternion<f64>) -> UnitQuate
         return q;
     }
     let a = a / scale;
-    for _ in 0..40 {
+    for _ in 0..30 {
         let r = q.to_rotation_matrix();
         let r = r.matrix();
         let num = r.column(0).cross(&a.column(0)) + r.column(1).cross(&a.column(1)) + r.column(2).cross(&a.column(2));
         let den = (r.column(0).dot(&a.column(0)) + r.column(1).dot(&a.column(1)) + r.column(2).dot(&a.column(2))).abs() + 1e-9;
         let omega: V3 = num / den;
         let angle = omega.norm();
-        if angle < 1e-9 {
+        // 1e-7 rad: far below what a spring can feel, and warm starts reach it in a
+        // step or two
+        if angle < 1e-7 {
             break;
         }
         q = UnitQuaternion::from_scaled_axis(omega.normalize() * angle.min(1.0)) * q;

@@ -1,0 +1,322 @@
+//! The coarse stage of the default method: a deformation graph (embedded deformation,
+//! Sumner et al. 2007, with as-rigid-as-possible node rotations). A few hundred nodes
+//! sampled over the template carry the deformation; every vertex follows the nodes near
+//! it along the surface. A bent leg or a turned head then moves as a whole in a few
+//! iterations, where per-vertex springs would pass the rotation on one ring at a time.
+
+use super::correspond::{MatchLimits, ScanSurface};
+use crate::mesh::{V3, vertex_normals};
+use nalgebra::{DMatrix, Matrix3, UnitQuaternion};
+use rayon::prelude::*;
+use std::cmp::Reverse;
+use std::collections::BinaryHeap;
+
+/// Nodes, their graph, and each vertex's blend of nodes.
+pub struct Graph {
+    /// #N rest positions of the nodes
+    pub rest: Vec<V3>,
+    /// #N neighbour lists (nodes whose surface regions touch)
+    pub edges: Vec<Vec<u32>>,
+    /// #V lists of (node, weight), weights summing to 1
+    pub blend: Vec<Vec<(u32, f64)>>,
+}
+
+/// Samples `count` nodes by farthest-point sampling and binds each vertex to up to four
+/// nodes that are near along the surface (its own Voronoi cell's node and that node's
+/// graph neighbours), so an arm is never bound to the torso beside it.
+///
+/// - `rest`: #V positions; `neighbours`: #V vertex neighbour lists
+pub fn build(rest: &[V3], neighbours: &[Vec<u32>], count: usize) -> Graph {
+    let n = rest.len();
+    let count = count.clamp(4, n);
+    // farthest-point sampling, Euclidean
+    let mut nodes = vec![0usize];
+    let mut dist: Vec<f64> = rest.iter().map(|p| (p - rest[0]).norm_squared()).collect();
+    while nodes.len() < count {
+        let (far, _) = dist.iter().enumerate().max_by(|a, b| a.1.total_cmp(b.1)).unwrap();
+        nodes.push(far);
+        for (d, p) in dist.iter_mut().zip(rest) {
+            *d = d.min((p - rest[far]).norm_squared());
+        }
+    }
+    // geodesic Voronoi cells: multi-source Dijkstra over mesh edges
+    let mut owner = vec![u32::MAX; n];
+    let mut gd = vec![f64::INFINITY; n];
+    let mut heap = BinaryHeap::new();
+    for (k, &v) in nodes.iter().enumerate() {
+        gd[v] = 0.0;
+        owner[v] = k as u32;
+        heap.push(Reverse((Ordered(0.0), v)));
+    }
+    while let Some(Reverse((Ordered(d), v))) = heap.pop() {
+        if d > gd[v] {
+            continue;
+        }
+        for &u in &neighbours[v] {
+            let u = u as usize;
+            let nd = d + (rest[u] - rest[v]).norm();
+            if nd < gd[u] {
+                gd[u] = nd;
+                owner[u] = owner[v];
+                heap.push(Reverse((Ordered(nd), u)));
+            }
+        }
+    }
+    let mut edges: Vec<Vec<u32>> = vec![Vec::new(); count];
+    for v in 0..n {
+        for &u in &neighbours[v] {
+            let (a, b) = (owner[v], owner[u as usize]);
+            if a != b && a != u32::MAX && b != u32::MAX {
+                edges[a as usize].push(b);
+            }
+        }
+    }
+    for e in &mut edges {
+        e.sort_unstable();
+        e.dedup();
+    }
+    let node_rest: Vec<V3> = nodes.iter().map(|&v| rest[v]).collect();
+    let blend = (0..n)
+        .into_par_iter()
+        .map(|v| {
+            let o = owner[v];
+            if o == u32::MAX {
+                return vec![];
+            }
+            let mut cand: Vec<(u32, f64)> = std::iter::once(o)
+                .chain(edges[o as usize].iter().copied())
+                .map(|k| (k, (rest[v] - node_rest[k as usize]).norm()))
+                .collect();
+            cand.sort_by(|a, b| a.1.total_cmp(&b.1));
+            cand.truncate(5);
+            let dmax = cand.last().map_or(1.0, |c| c.1).max(1e-12);
+            let mut w: Vec<(u32, f64)> = cand[..cand.len().min(4)]
+                .iter()
+                .map(|&(k, d)| (k, (1.0 - d / dmax).powi(2).max(1e-6)))
+                .collect();
+            let s: f64 = w.iter().map(|x| x.1).sum();
+            for x in &mut w {
+                x.1 /= s;
+            }
+            w
+        })
+        .collect();
+    Graph { rest: node_rest, edges, blend }
+}
+
+#[derive(Clone, Copy, PartialEq, PartialOrd)]
+struct Ordered(f64);
+impl Eq for Ordered {}
+impl Ord for Ordered {
+    fn cmp(&self, o: &Self) -> std::cmp::Ordering {
+        self.0.total_cmp(&o.0)
+    }
+}
+
+/// State of the graph: node positions and rotations.
+pub struct Deformation {
+    pub pos: Vec<V3>,
+    pub rot: Vec<UnitQuaternion<f64>>,
+}
+
+impl Graph {
+    /// Vertex positions under a deformation: `x_v = sum_k w_vk (p_k + R_k (r_v - r_k))`.
+    pub fn apply(&self, d: &Deformation, rest: &[V3]) -> Vec<V3> {
+        let rm: Vec<Matrix3<f64>> = d.rot.iter().map(|q| *q.to_rotation_matrix().matrix()).collect();
+        (0..rest.len())
+            .into_par_iter()
+            .map(|v| {
+                self.blend[v]
+                    .iter()
+                    .map(|&(k, w)| (d.pos[k as usize] + rm[k as usize] * (rest[v] - self.rest[k as usize])) * w)
+                    .sum()
+            })
+            .collect()
+    }
+}
+
+/// Settings of the coarse stage, taken from the conformation options.
+pub struct CoarseSettings {
+    pub iterations: usize,
+    pub epsilon_start: f64,
+    pub epsilon_end: f64,
+    pub max_distance_start: f64,
+    pub max_distance_end: f64,
+    pub min_normal_cos: f64,
+    pub point_to_point: f64,
+    /// weight of the scan-to-template pulls against the template-to-scan matches
+    pub scan_to_template: f64,
+}
+
+/// Runs the coarse stage from vertex positions `x0` (the global mapping) and returns
+/// the deformed vertex positions and per-vertex rotations (blended from the nodes) to
+/// seed the fine stage.
+///
+/// - `rest`: #V spring rest positions; `tris`: #F triangles
+/// - `landmarks`: #V (weight, target) pairs, weight 0 where a vertex has none
+#[allow(clippy::too_many_arguments)]
+pub fn run(
+    graph: &Graph,
+    rest: &[V3],
+    x0: &[V3],
+    tris: &[[u32; 3]],
+    scan: &ScanSurface,
+    diag: f64,
+    landmark_weight: &[f64],
+    landmark_target: &[V3],
+    s: &CoarseSettings,
+) -> (Vec<V3>, Vec<UnitQuaternion<f64>>) {
+    let nn = graph.rest.len();
+    let n = rest.len();
+    // start: each node where the global mapping put its vertex, rotations fitted
+    let mut def = Deformation { pos: vec![V3::zeros(); nn], rot: vec![UnitQuaternion::identity(); nn] };
+    {
+        let mut acc = vec![(V3::zeros(), 0.0); nn];
+        for v in 0..n {
+            for &(k, w) in &graph.blend[v] {
+                acc[k as usize].0 += (x0[v] - rest[v] + graph.rest[k as usize]) * w;
+                acc[k as usize].1 += w;
+            }
+        }
+        for (k, (p, w)) in acc.into_iter().enumerate() {
+            def.pos[k] = if w > 0.0 { p / w } else { graph.rest[k] };
+        }
+    }
+    fit_node_rotations(graph, &mut def);
+    let mut x = graph.apply(&def, rest);
+    for it in 0..s.iterations {
+        let f = if s.iterations > 1 { it as f64 / (s.iterations - 1) as f64 } else { 1.0 };
+        let eps = s.epsilon_start * (s.epsilon_end / s.epsilon_start).powf(f);
+        let lim = MatchLimits {
+            max_distance: s.max_distance_start * (s.max_distance_end / s.max_distance_start).powf(f) * diag,
+            min_normal_cos: s.min_normal_cos,
+        };
+        let normals = vertex_normals(&x, tris);
+        // a few thousand samples are plenty for a few hundred nodes
+        let stride = (n / 4000).max(1);
+        let matches: Vec<_> = (0..n)
+            .into_par_iter()
+            .map(|v| if v % stride == 0 { scan.query(&x[v], &normals[v], &lim) } else { None })
+            .collect();
+        let sampled = n.div_ceil(stride);
+        // Global step: node positions, with rotations fixed. Each vertex is linear in
+        // the node positions: x_v = sum_k w_vk p_k + c_v.
+        let rm: Vec<Matrix3<f64>> = def.rot.iter().map(|q| *q.to_rotation_matrix().matrix()).collect();
+        let mut a = DMatrix::<f64>::zeros(nn, nn);
+        let mut b = DMatrix::<f64>::zeros(nn, 3);
+        for v in 0..n {
+            let bl = &graph.blend[v];
+            let c: V3 = bl.iter().map(|&(k, w)| rm[k as usize] * (rest[v] - graph.rest[k as usize]) * w).sum();
+            let mut add = |weight: f64, target: V3| {
+                for &(i, wi) in bl {
+                    for &(j, wj) in bl {
+                        a[(i as usize, j as usize)] += weight * wi * wj;
+                    }
+                    for d in 0..3 {
+                        b[(i as usize, d)] += weight * wi * (target[d] - c[d]);
+                    }
+                }
+            };
+            if let Some(m) = &matches[v] {
+                let foot = x[v] - m.normal * m.normal.dot(&(x[v] - m.point));
+                add(m.weight, foot * (1.0 - s.point_to_point) + m.point * s.point_to_point);
+            }
+            if landmark_weight[v] > 0.0 {
+                add(landmark_weight[v], landmark_target[v]);
+            }
+        }
+        // The other direction: scan samples pull their nearest compatible vertex. Data a
+        // part has moved away from (a lifted leg) still reaches that part this way.
+        if s.scan_to_template > 0.0 {
+            let arr: Vec<[f64; 3]> = x.iter().map(|p| [p.x, p.y, p.z]).collect();
+            let tree: kiddo::ImmutableKdTree<f64, 3> = kiddo::ImmutableKdTree::new_from_slice(&arr);
+            let step = (scan.points.len() / sampled.max(1)).max(1);
+            let pulls: Vec<(usize, V3, V3)> = (0..scan.points.len())
+                .into_par_iter()
+                .step_by(step)
+                .filter_map(|i| {
+                    let p = scan.points[i];
+                    let sn = scan.normal(i);
+                    let nb = tree.nearest_n::<kiddo::SquaredEuclidean>(&[p.x, p.y, p.z], std::num::NonZero::new(8).unwrap());
+                    nb.iter()
+                        .map(|m| m.item as usize)
+                        .find(|&v| normals[v].dot(&sn) >= s.min_normal_cos)
+                        .filter(|&v| (x[v] - p).norm() <= lim.max_distance)
+                        .map(|v| (v, p, sn))
+                })
+                .collect();
+            let w = s.scan_to_template * (sampled as f64 / pulls.len().max(1) as f64).min(4.0);
+            for (v, p, sn) in pulls {
+                let foot = x[v] - sn * sn.dot(&(x[v] - p));
+                let target = foot * (1.0 - s.point_to_point) + p * s.point_to_point;
+                let bl = &graph.blend[v];
+                let c: V3 = bl.iter().map(|&(k, wk)| rm[k as usize] * (rest[v] - graph.rest[k as usize]) * wk).sum();
+                for &(i, wi) in bl {
+                    for &(j, wj) in bl {
+                        a[(i as usize, j as usize)] += w * wi * wj;
+                    }
+                    for d in 0..3 {
+                        b[(i as usize, d)] += w * wi * (target[d] - c[d]);
+                    }
+                }
+            }
+        }
+        // graph springs: sum over node edges |p_i - p_j - (R_i + R_j)/2 (r_i - r_j)|^2,
+        // scaled per node by the vertices it carries so epsilon keeps its meaning
+        let per_node = sampled as f64 / nn as f64;
+        for i in 0..nn {
+            for &j in &graph.edges[i] {
+                let j = j as usize;
+                let w = eps * per_node / graph.edges[i].len() as f64;
+                let e = (rm[i] + rm[j]) * (graph.rest[i] - graph.rest[j]) * 0.5;
+                a[(i, i)] += w;
+                a[(j, j)] += w;
+                a[(i, j)] -= w;
+                a[(j, i)] -= w;
+                for d in 0..3 {
+                    b[(i, d)] += w * e[d];
+                    b[(j, d)] -= w * e[d];
+                }
+            }
+            // keep the system definite where a node has no data at all
+            a[(i, i)] += 1e-6 * per_node;
+            for d in 0..3 {
+                b[(i, d)] += 1e-6 * per_node * def.pos[i][d];
+            }
+        }
+        if let Some(ch) = a.cholesky() {
+            let sol = ch.solve(&b);
+            for k in 0..nn {
+                def.pos[k] = V3::new(sol[(k, 0)], sol[(k, 1)], sol[(k, 2)]);
+            }
+        }
+        fit_node_rotations(graph, &mut def);
+        x = graph.apply(&def, rest);
+    }
+    let rm: Vec<UnitQuaternion<f64>> = (0..n)
+        .map(|v| {
+            let m: Matrix3<f64> =
+                graph.blend[v].iter().map(|&(k, w)| def.rot[k as usize].to_rotation_matrix().matrix() * w).sum();
+            super::solve::polar_rotation(&m, graph.blend[v].first().map_or(UnitQuaternion::identity(), |b| def.rot[b.0 as usize]))
+        })
+        .collect();
+    (x, rm)
+}
+
+/// Local step on the graph: each node's rotation best maps its rest edges to the current
+/// ones.
+fn fit_node_rotations(graph: &Graph, def: &mut Deformation) {
+    let pos = &def.pos;
+    let rots: Vec<UnitQuaternion<f64>> = (0..pos.len())
+        .into_par_iter()
+        .map(|i| {
+            let mut a = Matrix3::zeros();
+            for &j in &graph.edges[i] {
+                let j = j as usize;
+                a += (pos[i] - pos[j]) * (graph.rest[i] - graph.rest[j]).transpose();
+            }
+            super::solve::polar_rotation(&a, def.rot[i])
+        })
+        .collect();
+    def.rot = rots;
+}

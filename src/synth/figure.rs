@@ -1,0 +1,368 @@
+//! An articulated figure built procedurally from a skeleton: bones are round cones
+//! blended into one implicit surface, meshed by marching tetrahedra (always watertight
+//! and manifold) and relaxed towards even triangles. Each vertex is skinned to the bones,
+//! so the figure can be posed (joint rotations) and deformed (bend, twist, scale) with
+//! its vertex order unchanged: a posed figure is its own ground-truth correspondence.
+
+use crate::mesh::{Mesh, V3, landmarks::{Landmark, LandmarkPos}, topology};
+use nalgebra::{Rotation3, Unit};
+use std::collections::{BTreeMap, HashMap};
+
+/// One bone: a round cone from `head` (the joint) to `tail`, radii `r_head`, `r_tail`.
+#[derive(Debug, Clone)]
+pub struct Bone {
+    pub name: String,
+    pub parent: Option<usize>,
+    pub head: V3,
+    pub tail: V3,
+    pub r_head: f64,
+    pub r_tail: f64,
+    /// vertex group this bone's skin belongs to
+    pub group: String,
+}
+
+/// A skeleton and the smoothness of the blend between its bones.
+#[derive(Debug, Clone)]
+pub struct Skeleton {
+    pub bones: Vec<Bone>,
+    pub blend: f64,
+    /// named surface points (landmarks), as rest-pose positions near the surface
+    pub landmarks: Vec<(String, V3)>,
+}
+
+impl Skeleton {
+    pub fn bone(&self, name: &str) -> Option<usize> {
+        self.bones.iter().position(|b| b.name == name)
+    }
+
+    fn add(&mut self, name: &str, parent: Option<&str>, head: V3, tail: V3, r: (f64, f64), group: &str) {
+        let parent = parent.map(|p| self.bone(p).expect("parent bone defined first"));
+        self.bones.push(Bone { name: name.into(), parent, head, tail, r_head: r.0, r_tail: r.1, group: group.into() });
+    }
+
+    /// Signed distance (approximately) to the blended surface: negative inside.
+    pub fn sdf(&self, p: &V3) -> f64 {
+        let k = self.blend;
+        let mut d = f64::INFINITY;
+        for b in &self.bones {
+            let db = round_cone(p, b);
+            // polynomial smooth minimum
+            d = if d.is_infinite() {
+                db
+            } else {
+                let h = (0.5 + 0.5 * (db - d) / k).clamp(0.0, 1.0);
+                db * (1.0 - h) + d * h - k * h * (1.0 - h)
+            };
+        }
+        d
+    }
+}
+
+fn round_cone(p: &V3, b: &Bone) -> f64 {
+    let ab = b.tail - b.head;
+    let t = ((p - b.head).dot(&ab) / ab.norm_squared()).clamp(0.0, 1.0);
+    let r = b.r_head + (b.r_tail - b.r_head) * t;
+    (p - (b.head + ab * t)).norm() - r
+}
+
+/// A standing human-like figure, z up, facing +x, about 1.7 units tall: torso, neck, head
+/// with a nose, arms with hands, legs with feet. Front and back differ (nose, feet), so
+/// alignment without landmarks is well posed.
+pub fn humanoid() -> Skeleton {
+    let mut s = Skeleton { bones: vec![], blend: 0.035, landmarks: vec![] };
+    let v = V3::new;
+    s.add("pelvis", None, v(0., 0., 0.90), v(0., 0., 1.10), (0.15, 0.15), "torso");
+    s.add("chest", Some("pelvis"), v(0., 0., 1.10), v(0.01, 0., 1.38), (0.15, 0.17), "torso");
+    s.add("neck", Some("chest"), v(0., 0., 1.42), v(0., 0., 1.55), (0.055, 0.05), "head");
+    s.add("head", Some("neck"), v(0., 0., 1.62), v(0.01, 0., 1.70), (0.10, 0.095), "head");
+    // a face the scanner can resolve: nose and chin, so the head has an orientation
+    s.add("nose", Some("head"), v(0.06, 0., 1.66), v(0.14, 0., 1.63), (0.035, 0.025), "head");
+    s.add("chin", Some("head"), v(0.03, 0., 1.58), v(0.09, 0., 1.56), (0.04, 0.03), "head");
+    for (side, y) in [("l", 1.0), ("r", -1.0)] {
+        let n = |b: &str| format!("{b}_{side}");
+        s.add(&n("shoulder"), Some("chest"), v(0., 0.10 * y, 1.36), v(0., 0.21 * y, 1.37), (0.07, 0.065), "torso");
+        s.add(&n("upper_arm"), Some(&n("shoulder")), v(0., 0.22 * y, 1.36), v(0.02, 0.42 * y, 1.22), (0.055, 0.045), "arms");
+        s.add(&n("forearm"), Some(&n("upper_arm")), v(0.02, 0.42 * y, 1.22), v(0.07, 0.58 * y, 1.06), (0.045, 0.035), "arms");
+        s.add(&n("hand"), Some(&n("forearm")), v(0.07, 0.58 * y, 1.06), v(0.10, 0.66 * y, 0.98), (0.035, 0.03), "hands");
+        s.add(&n("thigh"), Some("pelvis"), v(0., 0.09 * y, 0.88), v(0.02, 0.11 * y, 0.50), (0.085, 0.06), "legs");
+        s.add(&n("shin"), Some(&n("thigh")), v(0.02, 0.11 * y, 0.50), v(0., 0.12 * y, 0.10), (0.055, 0.04), "legs");
+        s.add(&n("foot"), Some(&n("shin")), v(0., 0.12 * y, 0.08), v(0.16, 0.12 * y, 0.04), (0.045, 0.035), "feet");
+        s.landmarks.extend([
+            (n("hand_tip"), v(0.10 + 0.03 * 0.35, (0.66 + 0.03 * 0.9) * y, 0.98 - 0.03 * 0.2)),
+            (n("elbow"), v(0.0, 0.42 * y, 1.22 + 0.06)),
+            (n("shoulder_top"), v(0., 0.21 * y, 1.37 + 0.07)),
+            (n("knee"), v(0.02 + 0.06, 0.11 * y, 0.50)),
+            (n("toe"), v(0.16 + 0.04, 0.12 * y, 0.04)),
+            (n("heel"), v(-0.05, 0.12 * y, 0.08)),
+            (n("hip"), v(0., 0.09 * y + 0.12 * y, 0.90)),
+        ]);
+    }
+    s.landmarks.extend([
+        ("head_top".into(), v(0.01, 0., 1.80)),
+        ("nose_tip".into(), v(0.17, 0., 1.63)),
+        ("chin".into(), v(0.12, 0., 1.54)),
+        ("navel".into(), v(0.16, 0., 1.05)),
+        ("back".into(), v(-0.17, 0., 1.25)),
+    ]);
+    s
+}
+
+/// A figure mesh with its skin weights.
+#[derive(Debug, Clone)]
+pub struct Figure {
+    pub skeleton: Skeleton,
+    pub mesh: Mesh,
+    /// #V lists of (bone, weight), weights summing to 1
+    pub weights: Vec<Vec<(u32, f64)>>,
+}
+
+/// Meshes `skel` with about `target_vertices` vertices (within roughly 15%).
+pub fn build(skel: &Skeleton, target_vertices: usize) -> Figure {
+    let (lo, hi) = bounds(skel);
+    let area_guess = {
+        // one coarse pass measures the surface to choose the grid step
+        let m = mesh_sdf(skel, lo, hi, (hi - lo).max() / 40.0);
+        m.area()
+    };
+    // marching tetrahedra give about 1.3 vertices per h^2 of surface here (measured)
+    let mut h = (1.3 * area_guess / target_vertices as f64).sqrt();
+    let mut mesh = mesh_sdf(skel, lo, hi, h);
+    let ratio = mesh.vertices.len() as f64 / target_vertices as f64;
+    if !(0.9..=1.1).contains(&ratio) {
+        h *= ratio.sqrt();
+        mesh = mesh_sdf(skel, lo, hi, h);
+    }
+    relax(&mut mesh, skel, 6);
+    let weights = skin_weights(skel, &mesh.vertices);
+    let mut groups: BTreeMap<String, Vec<u32>> = BTreeMap::new();
+    for (i, w) in weights.iter().enumerate() {
+        let b = w.iter().max_by(|a, b| a.1.total_cmp(&b.1)).map_or(0, |x| x.0);
+        groups.entry(skel.bones[b as usize].group.clone()).or_default().push(i as u32);
+    }
+    mesh.groups = groups;
+    Figure { skeleton: skel.clone(), mesh, weights }
+}
+
+fn bounds(skel: &Skeleton) -> (V3, V3) {
+    let mut lo = V3::repeat(f64::INFINITY);
+    let mut hi = V3::repeat(f64::NEG_INFINITY);
+    for b in &skel.bones {
+        let r = b.r_head.max(b.r_tail) + skel.blend;
+        for p in [b.head, b.tail] {
+            lo = lo.inf(&(p - V3::repeat(r)));
+            hi = hi.sup(&(p + V3::repeat(r)));
+        }
+    }
+    let pad = (hi - lo).max() * 0.05;
+    (lo - V3::repeat(pad), hi + V3::repeat(pad))
+}
+
+/// Marching tetrahedra (six per grid cube, sharing the main diagonal, so neighbouring
+/// cubes split their faces alike and the surface is closed).
+fn mesh_sdf(skel: &Skeleton, lo: V3, hi: V3, h: f64) -> Mesh {
+    use rayon::prelude::*;
+    let dims = ((hi - lo) / h).map(|d| d.ceil() as usize + 1);
+    let (nx, ny, nz) = (dims.x, dims.y, dims.z);
+    let node = |i: usize, j: usize, k: usize| (k * ny + j) * nx + i;
+    let pos = |id: usize| {
+        let (i, j, k) = (id % nx, (id / nx) % ny, id / (nx * ny));
+        lo + V3::new(i as f64, j as f64, k as f64) * h
+    };
+    let field: Vec<f64> = (0..nx * ny * nz)
+        .into_par_iter()
+        .map(|id| {
+            let f = skel.sdf(&pos(id));
+            // no value exactly zero: a zero would make degenerate triangles
+            if f.abs() < 1e-9 * h { 1e-9 * h } else { f }
+        })
+        .collect();
+    const TETS: [[usize; 4]; 6] = [[0, 1, 3, 7], [0, 1, 5, 7], [0, 2, 3, 7], [0, 2, 6, 7], [0, 4, 5, 7], [0, 4, 6, 7]];
+    let mut verts: Vec<V3> = Vec::new();
+    let mut on_edge: HashMap<(usize, usize), u32> = HashMap::new();
+    let mut tris: Vec<[u32; 3]> = Vec::new();
+    for k in 0..nz - 1 {
+        for j in 0..ny - 1 {
+            for i in 0..nx - 1 {
+                let c: [usize; 8] = std::array::from_fn(|b| node(i + (b & 1), j + ((b >> 1) & 1), k + ((b >> 2) & 1)));
+                if c.iter().all(|&id| field[id] > 0.0) || c.iter().all(|&id| field[id] < 0.0) {
+                    continue;
+                }
+                for tet in TETS {
+                    let t = tet.map(|b| c[b]);
+                    let inside: Vec<usize> = t.iter().copied().filter(|&id| field[id] < 0.0).collect();
+                    let outside: Vec<usize> = t.iter().copied().filter(|&id| field[id] >= 0.0).collect();
+                    if inside.is_empty() || outside.is_empty() {
+                        continue;
+                    }
+                    let mut cut = |a: usize, b: usize| -> u32 {
+                        let key = (a.min(b), a.max(b));
+                        *on_edge.entry(key).or_insert_with(|| {
+                            let s = field[a] / (field[a] - field[b]);
+                            verts.push(pos(a) + (pos(b) - pos(a)) * s);
+                            (verts.len() - 1) as u32
+                        })
+                    };
+                    let out_dir = outside.iter().map(|&o| pos(o)).sum::<V3>() / outside.len() as f64
+                        - inside.iter().map(|&o| pos(o)).sum::<V3>() / inside.len() as f64;
+                    let mut polys: Vec<[u32; 3]> = Vec::new();
+                    match (inside.len(), outside.len()) {
+                        (1, 3) => polys.push([cut(inside[0], outside[0]), cut(inside[0], outside[1]), cut(inside[0], outside[2])]),
+                        (3, 1) => polys.push([cut(outside[0], inside[0]), cut(outside[0], inside[1]), cut(outside[0], inside[2])]),
+                        _ => {
+                            let (a, b) = (inside[0], inside[1]);
+                            let (p, q) = (outside[0], outside[1]);
+                            let (ap, aq, bq, bp) = (cut(a, p), cut(a, q), cut(b, q), cut(b, p));
+                            polys.push([ap, aq, bq]);
+                            polys.push([ap, bq, bp]);
+                        }
+                    }
+                    for mut tri in polys {
+                        let n = (verts[tri[1] as usize] - verts[tri[0] as usize]).cross(&(verts[tri[2] as usize] - verts[tri[0] as usize]));
+                        if n.dot(&out_dir) < 0.0 {
+                            tri.swap(1, 2);
+                        }
+                        tris.push(tri);
+                    }
+                }
+            }
+        }
+    }
+    Mesh::new(verts, tris)
+}
+
+/// Tangential smoothing with re-projection onto the implicit surface: evens out the
+/// slivers marching tetrahedra leave where the surface passes close to grid nodes.
+fn relax(mesh: &mut Mesh, skel: &Skeleton, rounds: usize) {
+    use rayon::prelude::*;
+    let nb = topology::vertex_neighbours(mesh.vertices.len(), &mesh.triangles);
+    let grad = |p: &V3| {
+        let e = 1e-5;
+        V3::new(
+            skel.sdf(&(p + V3::x() * e)) - skel.sdf(&(p - V3::x() * e)),
+            skel.sdf(&(p + V3::y() * e)) - skel.sdf(&(p - V3::y() * e)),
+            skel.sdf(&(p + V3::z() * e)) - skel.sdf(&(p - V3::z() * e)),
+        ) / (2.0 * e)
+    };
+    for _ in 0..rounds {
+        let normals = mesh.vertex_normals();
+        let v = &mesh.vertices;
+        let next: Vec<V3> = (0..v.len())
+            .into_par_iter()
+            .map(|i| {
+                if nb[i].is_empty() {
+                    return v[i];
+                }
+                let c = nb[i].iter().map(|&j| v[j as usize]).sum::<V3>() / nb[i].len() as f64;
+                let d = c - v[i];
+                let mut p = v[i] + (d - normals[i] * normals[i].dot(&d)) * 0.6;
+                for _ in 0..2 {
+                    let g = grad(&p);
+                    let g2 = g.norm_squared();
+                    if g2 > 1e-12 {
+                        p -= g * (skel.sdf(&p) / g2);
+                    }
+                }
+                p
+            })
+            .collect();
+        mesh.vertices = next;
+    }
+}
+
+/// Skin weights from the distance to each bone's surface: sharp falloff, so a vertex
+/// follows its own bone and blends only near joints.
+pub fn skin_weights(skel: &Skeleton, v: &[V3]) -> Vec<Vec<(u32, f64)>> {
+    let sigma = skel.blend * 0.8;
+    v.iter()
+        .map(|p| {
+            let d: Vec<f64> = skel.bones.iter().map(|b| round_cone(p, b)).collect();
+            let dmin = d.iter().copied().fold(f64::INFINITY, f64::min);
+            let mut w: Vec<(u32, f64)> = d
+                .iter()
+                .enumerate()
+                .map(|(b, &x)| (b as u32, (-(x - dmin) / sigma).exp()))
+                .filter(|&(_, w)| w > 1e-4)
+                .collect();
+            let s: f64 = w.iter().map(|x| x.1).sum();
+            for x in &mut w {
+                x.1 /= s;
+            }
+            w
+        })
+        .collect()
+}
+
+/// Joint rotations (degrees, about each bone's joint, in the rest frame) and a global
+/// deformation applied after them.
+#[derive(Debug, Clone, Default)]
+pub struct Pose {
+    /// bone name -> (axis, degrees)
+    pub joints: Vec<(String, V3, f64)>,
+    /// bend of the whole about the y axis, degrees over the figure's height
+    pub bend: f64,
+    /// twist of the whole about the z axis, degrees over the figure's height
+    pub twist: f64,
+    /// uniform scale
+    pub scale: f64,
+    /// a final rigid motion: rotation (axis, degrees) and translation
+    pub turn: Option<(V3, f64)>,
+    pub shift: V3,
+}
+
+impl Figure {
+    /// Vertex positions in `pose`; same order as the rest mesh.
+    pub fn pose(&self, pose: &Pose) -> Vec<V3> {
+        let bones = &self.skeleton.bones;
+        // bone transforms: rotation about its joint, composed down the hierarchy
+        let mut xf: Vec<(Rotation3<f64>, V3)> = Vec::with_capacity(bones.len());
+        for b in bones.iter() {
+            let local = pose
+                .joints
+                .iter()
+                .filter(|(n, _, _)| n == &b.name)
+                .fold(Rotation3::identity(), |r, (_, axis, deg)| {
+                    Rotation3::from_axis_angle(&Unit::new_normalize(*axis), deg.to_radians()) * r
+                });
+            // x -> R_local (x - head) + head, then the parent's transform
+            let (pr, pt) = b.parent.map_or((Rotation3::identity(), V3::zeros()), |p| xf[p]);
+            let r = pr * local;
+            let t = pr * (b.head - local * b.head) + pt;
+            xf.push((r, t));
+        }
+        let (lo, hi) = self.mesh.bounding_box().unwrap_or_default();
+        let height = (hi.z - lo.z).max(1e-9);
+        let scale = if pose.scale > 0.0 { pose.scale } else { 1.0 };
+        let turn = pose.turn.map(|(a, d)| Rotation3::from_axis_angle(&Unit::new_normalize(a), d.to_radians()));
+        self.mesh
+            .vertices
+            .iter()
+            .zip(&self.weights)
+            .map(|(p, w)| {
+                let mut q = w.iter().map(|&(b, wt)| (xf[b as usize].0 * p + xf[b as usize].1) * wt).sum::<V3>();
+                let f = (q.z - lo.z) / height;
+                let pivot = V3::new(0., 0., lo.z);
+                q = Rotation3::from_axis_angle(&V3::y_axis(), (pose.bend * f).to_radians()) * (q - pivot) + pivot;
+                q = Rotation3::from_axis_angle(&V3::z_axis(), (pose.twist * f).to_radians()) * q;
+                q *= scale;
+                if let Some(r) = turn {
+                    q = r * q;
+                }
+                q + pose.shift
+            })
+            .collect()
+    }
+
+    /// The skeleton's landmarks snapped to their nearest vertices.
+    pub fn landmarks(&self) -> Vec<Landmark> {
+        self.skeleton
+            .landmarks
+            .iter()
+            .map(|(name, p)| {
+                let v = (0..self.mesh.vertices.len())
+                    .min_by(|&a, &b| (self.mesh.vertices[a] - p).norm().total_cmp(&(self.mesh.vertices[b] - p).norm()))
+                    .unwrap_or(0);
+                Landmark { name: name.clone(), pos: LandmarkPos::Vertex(v as u32) }
+            })
+            .collect()
+    }
+}
