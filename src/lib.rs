@@ -4,5 +4,6 @@
 //! path and the layout.
 
 pub mod conform;
+pub mod jobs;
 pub mod mesh;
 pub mod synth;

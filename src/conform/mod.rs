@@ -38,6 +38,18 @@ pub enum Method {
     Default,
 }
 
+impl clap::ValueEnum for Method {
+    fn value_variants<'a>() -> &'a [Self] {
+        &[Method::Default, Method::Paper]
+    }
+    fn to_possible_value(&self) -> Option<clap::builder::PossibleValue> {
+        Some(clap::builder::PossibleValue::new(match self {
+            Method::Default => "default",
+            Method::Paper => "paper",
+        }))
+    }
+}
+
 impl std::str::FromStr for Method {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
@@ -171,10 +183,14 @@ impl Default for ConformOptions {
 }
 
 impl ConformOptions {
-    /// The paper's method with settings that suit it.
+    /// The paper's method with settings that suit it. The springs' rest shape is the
+    /// generic mesh as the global mapping left it: equation 4's "original positions in
+    /// the generic mesh" read as the mesh the local stage starts from (the paper's second
+    /// step "relies on the first step").
     pub fn paper() -> Self {
         ConformOptions {
             method: Method::Paper,
+            rest: RestShape::Mapped,
             max_iterations: 30,
             epsilon_start: 1.0,
             epsilon_end: 1.0,

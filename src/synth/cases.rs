@@ -88,8 +88,49 @@ pub fn sphere_to_box_with_missing(level: u32) -> Case {
 pub fn in_box_hole(p: &V3) -> bool {
     let h = V3::from(BOX_SIZE) / 2.0;
     let on_px = (p.x - h.x).abs() < 1e-9;
-    let on_top_disc = (p.z - h.z).abs() < 1e-9 && (p.x * p.x + p.y * p.y).sqrt() < 0.35;
+    let on_top_disc = (p.z - h.z).abs() < 1e-9 && !on_px && (p.x * p.x + p.y * p.y).sqrt() < 0.35;
     on_px || on_top_disc
+}
+
+/// How well a result of the box case fits the true (whole) box: distances to the true
+/// surface relative to the box diagonal, over the vertices whose nearest box point lies
+/// in the removed region, and the largest anywhere.
+#[derive(Debug, Clone, Copy, serde::Serialize)]
+pub struct BoxFigures {
+    pub missing_vertices: usize,
+    pub missing_mean: f64,
+    pub missing_p90: f64,
+    pub missing_max: f64,
+    pub max_anywhere: f64,
+}
+
+pub fn box_figures(result: &Mesh) -> BoxFigures {
+    let size = V3::from(BOX_SIZE);
+    let diag = size.norm();
+    let h = size / 2.0;
+    let mut missing: Vec<f64> = Vec::new();
+    let mut max_anywhere: f64 = 0.0;
+    for p in &result.vertices {
+        let d = super::distance_to_box_surface(p, &size) / diag;
+        max_anywhere = max_anywhere.max(d);
+        // the nearest point of the box surface
+        let mut q = p.zip_map(&h, |a, b| a.clamp(-b, b));
+        let gaps = [h.x - q.x.abs(), h.y - q.y.abs(), h.z - q.z.abs()];
+        let k = (0..3).min_by(|&a, &b| gaps[a].total_cmp(&gaps[b])).unwrap_or(0);
+        q[k] = h[k].copysign(q[k]);
+        if in_box_hole(&q) {
+            missing.push(d);
+        }
+    }
+    missing.sort_by(f64::total_cmp);
+    let n = missing.len();
+    BoxFigures {
+        missing_vertices: n,
+        missing_mean: if n > 0 { missing.iter().sum::<f64>() / n as f64 } else { 0.0 },
+        missing_p90: if n > 0 { missing[(n * 9 / 10).min(n - 1)] } else { 0.0 },
+        missing_max: missing.last().copied().unwrap_or(0.0),
+        max_anywhere,
+    }
 }
 
 /// Settings of the articulated case.
