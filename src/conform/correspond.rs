@@ -249,3 +249,64 @@ fn estimate_normals(points: &[V3], tree: &ImmutableKdTree<f64, 3>) -> Vec<V3> {
         })
         .collect()
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A flat square patch in z = 0, [-1, 1]^2, facing +z.
+    fn patch() -> Mesh {
+        let n = 10;
+        let mut m = Mesh::default();
+        for j in 0..=n {
+            for i in 0..=n {
+                m.vertices.push(V3::new(-1.0 + 2.0 * i as f64 / n as f64, -1.0 + 2.0 * j as f64 / n as f64, 0.0));
+            }
+        }
+        for j in 0..n {
+            for i in 0..n {
+                let a = (j * (n + 1) + i) as u32;
+                let (b, c, d) = (a + 1, a + n as u32 + 2, a + n as u32 + 1);
+                m.triangles.extend([[a, b, c], [a, c, d]]);
+            }
+        }
+        m
+    }
+
+    fn check(surface: &ScanSurface) {
+        let lim = MatchLimits { max_distance: 0.2, min_normal_cos: 0.5 };
+        let up = V3::z();
+        let m = surface.query(&V3::new(0.3, -0.2, 0.1), &up, &lim).expect("above the patch: a match");
+        assert!((m.point - V3::new(0.3, -0.2, 0.0)).norm() < 1e-9 && (m.distance - 0.1).abs() < 1e-9);
+        assert!(m.weight > 0.0 && m.weight <= 1.0);
+        assert!(surface.query(&V3::new(0.3, -0.2, 0.5), &up, &lim).is_none(), "too far");
+        assert!(surface.query(&V3::new(0.3, -0.2, 0.1), &-up, &lim).is_none(), "faces the wrong way");
+        assert!(surface.query(&V3::new(1.1, 0.0, 0.05), &up, &lim).is_none(), "past the scan's edge");
+    }
+
+    #[test]
+    fn mesh_scan_labels_missing_data() {
+        check(&ScanSurface::new(&patch()).unwrap());
+    }
+
+    #[test]
+    fn point_cloud_scan_labels_missing_data() {
+        let p = patch();
+        let mut cloud = Mesh::new(Vec::new(), Vec::new());
+        let n = 60;
+        for j in 0..=n {
+            for i in 0..=n {
+                cloud.vertices.push(V3::new(-1.0 + 2.0 * i as f64 / n as f64, -1.0 + 2.0 * j as f64 / n as f64, 0.0));
+            }
+        }
+        cloud.normals = Some(vec![V3::z(); cloud.vertices.len()]);
+        check(&ScanSurface::new(&cloud).unwrap());
+        // without normals they are estimated (sign unknown): wrong-way faces still match
+        let bare = Mesh::new(cloud.vertices.clone(), vec![]);
+        let s = ScanSurface::new(&bare).unwrap();
+        let lim = MatchLimits { max_distance: 0.2, min_normal_cos: 0.5 };
+        assert!(s.query(&V3::new(0.0, 0.0, 0.1), &-V3::z(), &lim).is_some());
+        assert!(s.query(&V3::new(1.2, 0.0, 0.05), &V3::z(), &lim).is_none());
+        let _ = p;
+    }
+}

@@ -338,6 +338,7 @@ pub struct ConformReport {
 }
 
 /// A conformed mesh and its report.
+#[derive(Debug)]
 pub struct Conformed {
     pub mesh: Mesh,
     pub report: ConformReport,

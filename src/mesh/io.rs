@@ -386,7 +386,7 @@ impl RowSource for BinaryRows<'_> {
 }
 
 struct AsciiRows<'a> {
-    lines: std::iter::Enumerate<std::str::Lines<'a>>,
+    lines: std::iter::Peekable<std::iter::Enumerate<std::str::Lines<'a>>>,
     header_lines: usize,
     tokens: Vec<&'a str>,
     next: usize,
@@ -400,7 +400,7 @@ impl<'a> AsciiRows<'a> {
             Ok(t) => (t, false),
             Err(_) => ("", true),
         };
-        AsciiRows { lines: text.lines().enumerate(), header_lines, tokens: vec![], next: 0, line: 0, invalid_utf8 }
+        AsciiRows { lines: text.lines().enumerate().peekable(), header_lines, tokens: vec![], next: 0, line: 0, invalid_utf8 }
     }
 }
 
@@ -422,7 +422,14 @@ impl RowSource for AsciiRows<'_> {
         }
     }
     fn value(&mut self, ty: Scalar) -> Result<f64, String> {
-        let t = self.tokens.get(self.next).ok_or_else(|| format!("line {}: too few values", self.line))?;
+        let Some(t) = self.tokens.get(self.next) else {
+            let last = self.lines.peek().is_none();
+            return Err(if last {
+                format!("file is truncated (line {} is incomplete)", self.line)
+            } else {
+                format!("line {}: too few values", self.line)
+            });
+        };
         self.next += 1;
         let v: f64 = t.parse().map_err(|_| format!("line {}: '{t}' is not a number", self.line))?;
         if !matches!(ty, Scalar::F32 | Scalar::F64) && v.fract() != 0.0 {
