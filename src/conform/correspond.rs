@@ -201,11 +201,13 @@ impl ScanSurface {
                 let normal = nsum.try_normalize(0.0).unwrap_or(n0);
                 let foot = x - normal * normal.dot(&(x - c));
                 // The foot must lie where there is data: within the patch the neighbours
-                // span, else the vertex looks past the edge of a hole.
-                let reach = nb.last().map_or(0.0, |m| m.distance.sqrt()).max(self.spacing);
-                if (foot - p0).norm() > reach {
+                // span around their centroid, else the vertex looks past the edge of a
+                // hole (all its neighbours lie to one side).
+                let reach = nb.iter().map(|m| (points[m.item as usize] - c).norm()).fold(self.spacing, f64::max);
+                if (foot - c).norm() > reach {
                     return None;
                 }
+                let _ = p0;
                 (foot, normal, *oriented)
             }
         };
