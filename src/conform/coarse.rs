@@ -237,11 +237,12 @@ pub fn run(
                 .filter_map(|i| {
                     let p = scan.points[i];
                     let sn = scan.normal(i);
-                    let nb = tree.nearest_n::<kiddo::SquaredEuclidean>(&[p.x, p.y, p.z], std::num::NonZero::new(8).unwrap());
+                    let r2 = lim.max_distance * lim.max_distance;
+                    let mut nb = tree.nearest_n_within::<kiddo::SquaredEuclidean>(&[p.x, p.y, p.z], r2, std::num::NonZero::new(8).unwrap(), false);
+                    nb.sort_unstable_by(|a, b| a.distance.total_cmp(&b.distance));
                     nb.iter()
                         .map(|m| m.item as usize)
                         .find(|&v| normals[v].dot(&sn) >= s.min_normal_cos)
-                        .filter(|&v| (x[v] - p).norm() <= lim.max_distance)
                         .map(|v| (v, p, sn))
                 })
                 .collect();

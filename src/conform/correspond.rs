@@ -182,11 +182,11 @@ impl ScanSurface {
                 (p, normal, true)
             }
             Index::Cloud { points, normals, oriented } => {
-                let nb = self.tree.nearest_n::<SquaredEuclidean>(&[x.x, x.y, x.z], NonZero::new(CLOUD_K).unwrap());
-                let first = nb.first()?;
-                if first.distance.sqrt() > lim.max_distance {
-                    return None;
-                }
+                // bounded and unsorted: far vertices cost little, and only the nearest
+                // of the few neighbours needs finding
+                let r2 = lim.max_distance * lim.max_distance;
+                let nb = self.tree.nearest_n_within::<SquaredEuclidean>(&[x.x, x.y, x.z], r2, NonZero::new(CLOUD_K).unwrap(), false);
+                let first = nb.iter().min_by(|a, b| a.distance.total_cmp(&b.distance))?;
                 let p0 = points[first.item as usize];
                 let n0 = normals[first.item as usize];
                 let mut c = V3::zeros();

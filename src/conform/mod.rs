@@ -457,6 +457,7 @@ pub fn conform(
     let rest_mesh = Mesh::new(rest.clone(), template.triangles.clone());
     let diag = rest_mesh.diagonal();
     let neighbours = topology::vertex_neighbours(n, &template.triangles);
+    let baseline = quality::VariationBaseline::new(&template.vertices, &template.triangles);
     let mut stiff = vec![1.0f64; n];
     for (g, &k) in &opts.stiffness {
         for &v in &template.groups[g] {
@@ -618,7 +619,7 @@ pub fn conform(
         let rep = IterationReport {
             iteration: it + 1,
             epsilon: eps,
-            variation: quality::variation(&template.vertices, &x, &template.triangles),
+            variation: baseline.measure(&x),
             matched: summary.matched,
             filled,
             unreachable,
@@ -663,7 +664,7 @@ pub fn conform(
         scan_is_mesh: !scan.triangles.is_empty(),
         global: global_report,
         converged,
-        final_variation: quality::variation(&template.vertices, &mesh.vertices, &template.triangles),
+        final_variation: baseline.measure(&mesh.vertices),
         folded_triangles: quality::folded_triangles(&mesh),
         matched: fin.matched,
         filled: n - fin.matched,

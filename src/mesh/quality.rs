@@ -47,32 +47,54 @@ pub struct Variation {
 /// - `original`, `deformed`: #V positions each
 /// - `tris`: #F triangles shared by both
 pub fn variation(original: &[V3], deformed: &[V3], tris: &[[u32; 3]]) -> Variation {
-    let edges = topology::edges(tris);
-    let len = |p: &[V3], [a, b]: [u32; 2]| (p[a as usize] - p[b as usize]).norm();
-    let edge_length = Stat::of(edges.iter().map(|&e| {
-        let l0 = len(original, e);
-        (len(deformed, e) - l0) / l0
-    }));
-    let area = |p: &[V3], t: &[u32; 3]| {
-        0.5 * (p[t[1] as usize] - p[t[0] as usize]).cross(&(p[t[2] as usize] - p[t[0] as usize])).norm()
-    };
-    let area_stat = Stat::of(tris.iter().map(|t| {
-        let a0 = area(original, t);
-        (area(deformed, t) - a0) / a0
-    }));
-    let angles = |p: &[V3], t: &[u32; 3]| -> [f64; 3] {
-        std::array::from_fn(|k| {
-            let o = p[t[k] as usize];
-            let u = p[t[(k + 1) % 3] as usize] - o;
-            let v = p[t[(k + 2) % 3] as usize] - o;
-            u.angle(&v)
-        })
-    };
-    let angle = Stat::of(tris.iter().flat_map(|t| {
-        let (a0, a1) = (angles(original, t), angles(deformed, t));
-        (0..3).map(move |k| a1[k] - a0[k])
-    }));
-    Variation { edge_length, angle, area: area_stat }
+    VariationBaseline::new(original, tris).measure(deformed)
+}
+
+/// The original's edge lengths, angles and areas, measured once so that the figures of
+/// many deformed versions (one per iteration) cost one pass each.
+pub struct VariationBaseline {
+    edges: Vec<[u32; 2]>,
+    lengths: Vec<f64>,
+    tris: Vec<[u32; 3]>,
+    areas: Vec<f64>,
+    angles: Vec<[f64; 3]>,
+}
+
+fn tri_area(p: &[V3], t: &[u32; 3]) -> f64 {
+    0.5 * (p[t[1] as usize] - p[t[0] as usize]).cross(&(p[t[2] as usize] - p[t[0] as usize])).norm()
+}
+
+fn tri_angles(p: &[V3], t: &[u32; 3]) -> [f64; 3] {
+    std::array::from_fn(|k| {
+        let o = p[t[k] as usize];
+        (p[t[(k + 1) % 3] as usize] - o).angle(&(p[t[(k + 2) % 3] as usize] - o))
+    })
+}
+
+impl VariationBaseline {
+    pub fn new(original: &[V3], tris: &[[u32; 3]]) -> Self {
+        let edges = topology::edges(tris);
+        let lengths = edges.iter().map(|&[a, b]| (original[a as usize] - original[b as usize]).norm()).collect();
+        VariationBaseline {
+            lengths,
+            edges,
+            tris: tris.to_vec(),
+            areas: tris.iter().map(|t| tri_area(original, t)).collect(),
+            angles: tris.iter().map(|t| tri_angles(original, t)).collect(),
+        }
+    }
+
+    pub fn measure(&self, deformed: &[V3]) -> Variation {
+        let edge_length = Stat::of(self.edges.iter().zip(&self.lengths).map(|(&[a, b], &l0)| {
+            ((deformed[a as usize] - deformed[b as usize]).norm() - l0) / l0
+        }));
+        let area = Stat::of(self.tris.iter().zip(&self.areas).map(|(t, &a0)| (tri_area(deformed, t) - a0) / a0));
+        let angle = Stat::of(self.tris.iter().zip(&self.angles).flat_map(|(t, a0)| {
+            let a1 = tri_angles(deformed, t);
+            (0..3).map(move |k| a1[k] - a0[k])
+        }));
+        Variation { edge_length, angle, area }
+    }
 }
 
 /// Triangles folded over in the mesh itself: the triangle's normal is more than 150
