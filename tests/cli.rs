@@ -120,3 +120,11 @@ fn config_file_and_info() {
     assert_eq!(info["topology"]["watertight"], true);
     assert!(info["variation"]["edge_length"]["std"].as_f64().is_some());
 }
+
+#[test]
+fn example_config_documents_the_defaults() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/conform.example.toml");
+    let loaded = conformd::jobs::load_conform_options(&path).expect("the example config loads");
+    let as_json = |o: &conformd::conform::ConformOptions| serde_json::to_value(o).unwrap();
+    assert_eq!(as_json(&loaded), as_json(&conformd::conform::ConformOptions::default()));
+}
