@@ -9,7 +9,14 @@ use std::time::Instant;
 
 fn run(case: &Case, landmarks: bool) -> Conformed {
     let lm = landmarks.then(|| (&case.template_landmarks[..], &case.scan_landmarks[..]));
-    conform(&case.template, &case.scan, lm, &ConformOptions::default(), &mut |_| {}).expect("conforms")
+    conform(
+        &case.template,
+        &case.scan,
+        lm,
+        &ConformOptions::default(),
+        &mut |_| {},
+    )
+    .expect("conforms")
 }
 
 fn bench(label: &str, case: &Case, landmarks: bool, repeats: usize, target: Option<f64>) {
@@ -24,14 +31,26 @@ fn bench(label: &str, case: &Case, landmarks: bool, repeats: usize, target: Opti
     times.sort_by(f64::total_cmp);
     let r = last.unwrap();
     let s = &r.report.seconds;
-    let e = cases::correspondence_error(&r.mesh.vertices, case.truth.as_ref().unwrap(), &case.in_hole, &case.template.triangles);
+    let e = cases::correspondence_error(
+        &r.mesh.vertices,
+        case.truth.as_ref().unwrap(),
+        &case.in_hole,
+        &case.template.triangles,
+    );
     println!(
         "{label:<34} {:>6} v {:>7} pts  best {:>6.3} s  median {:>6.3} s{}  | global {:.3} coarse {:.3} match {:.3} rot {:.3} solve {:.3} other {:.3} | {} its, error {:.3}%",
         case.template.vertices.len(),
         case.scan.vertices.len(),
         times[0],
         times[times.len() / 2],
-        target.map_or(String::new(), |t| format!(" (target {t} s: {})", if times[times.len() / 2] <= t { "met" } else { "MISSED" })),
+        target.map_or(String::new(), |t| format!(
+            " (target {t} s: {})",
+            if times[times.len() / 2] <= t {
+                "met"
+            } else {
+                "MISSED"
+            }
+        )),
         s.global,
         s.coarse,
         s.correspond,
@@ -44,12 +63,20 @@ fn bench(label: &str, case: &Case, landmarks: bool, repeats: usize, target: Opti
 }
 
 fn case(v: usize, pts: usize, turned: bool) -> Case {
-    cases::articulated(&ArticulatedSpec { template_vertices: v, scan_points: pts, turned, ..Default::default() })
+    cases::articulated(&ArticulatedSpec {
+        template_vertices: v,
+        scan_points: pts,
+        turned,
+        ..Default::default()
+    })
 }
 
 fn main() {
     let quick = std::env::args().any(|a| a == "--quick");
-    println!("conformd conformation benchmark ({} threads)", rayon::current_num_threads());
+    println!(
+        "conformd conformation benchmark ({} threads)",
+        rayon::current_num_threads()
+    );
     let c = case(10_000, 100_000, false);
     bench("10k onto 100k, landmarks", &c, true, 5, Some(1.0));
     let c = case(10_000, 100_000, true);
@@ -63,7 +90,13 @@ fn main() {
     bench("50k onto 500k, no landmarks", &c, false, 3, Some(6.0));
     println!("-- growth with template size (scan 100k points, landmarks)");
     for v in [2_500, 5_000, 10_000, 20_000, 40_000] {
-        bench(&format!("template {v}"), &case(v, 100_000, false), true, 3, None);
+        bench(
+            &format!("template {v}"),
+            &case(v, 100_000, false),
+            true,
+            3,
+            None,
+        );
     }
     println!("-- growth with scan size (template 10k vertices, landmarks)");
     for p in [25_000, 100_000, 400_000, 1_000_000] {

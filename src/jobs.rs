@@ -21,22 +21,38 @@ pub enum JobError {
     #[error("{0}")]
     Usage(String),
     #[error("{path}: {source}")]
-    Io { path: String, source: std::io::Error },
+    Io {
+        path: String,
+        source: std::io::Error,
+    },
 }
 
 /// Reads conformation options from a TOML file: either a whole `conform.toml`, or a
 /// station config whose `[conform]` table holds them. Unknown keys are errors.
 pub fn load_conform_options(path: &Path) -> Result<ConformOptions, JobError> {
     let name = path.display().to_string();
-    let text = std::fs::read_to_string(path).map_err(|source| JobError::Io { path: name.clone(), source })?;
-    let table: toml::Table = toml::from_str(&text).map_err(|e| JobError::Config { path: name.clone(), msg: e.to_string() })?;
+    let text = std::fs::read_to_string(path).map_err(|source| JobError::Io {
+        path: name.clone(),
+        source,
+    })?;
+    let table: toml::Table = toml::from_str(&text).map_err(|e| JobError::Config {
+        path: name.clone(),
+        msg: e.to_string(),
+    })?;
     let table = match table.get("conform") {
         Some(toml::Value::Table(t)) => t.clone(),
         _ => table,
     };
-    let opts: ConformOptions =
-        table.try_into().map_err(|e: toml::de::Error| JobError::Config { path: name.clone(), msg: e.to_string() })?;
-    opts.validate().map_err(|e| JobError::Config { path: name, msg: e.to_string() })?;
+    let opts: ConformOptions = table
+        .try_into()
+        .map_err(|e: toml::de::Error| JobError::Config {
+            path: name.clone(),
+            msg: e.to_string(),
+        })?;
+    opts.validate().map_err(|e| JobError::Config {
+        path: name,
+        msg: e.to_string(),
+    })?;
     Ok(opts)
 }
 
@@ -62,9 +78,17 @@ pub fn conform_files(
     opts: &ConformOptions,
     progress: &mut dyn FnMut(&IterationReport),
 ) -> Result<ConformReport, JobError> {
-    let ext = files.out.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
+    let ext = files
+        .out
+        .extension()
+        .and_then(|e| e.to_str())
+        .unwrap_or("")
+        .to_ascii_lowercase();
     if ext != "ply" && ext != "obj" {
-        return Err(JobError::Usage(format!("{}: the output must be a .ply or .obj file", files.out.display())));
+        return Err(JobError::Usage(format!(
+            "{}: the output must be a .ply or .obj file",
+            files.out.display()
+        )));
     }
     let template = mesh::read_mesh(&files.template)?;
     let scan = mesh::read_mesh(&files.scan)?;
@@ -117,8 +141,14 @@ pub struct DemoFigures {
 /// The paper's sphere-to-box case with missing data (Ju et al. 2004, section 3.2), with
 /// both methods: writes the template, the scan with its holes, landmarks, each conformed
 /// mesh and report into `out_dir`.
-pub fn demo(out_dir: &Path, progress: &mut dyn FnMut(Method, &IterationReport)) -> Result<DemoSummary, JobError> {
-    std::fs::create_dir_all(out_dir).map_err(|source| JobError::Io { path: out_dir.display().to_string(), source })?;
+pub fn demo(
+    out_dir: &Path,
+    progress: &mut dyn FnMut(Method, &IterationReport),
+) -> Result<DemoSummary, JobError> {
+    std::fs::create_dir_all(out_dir).map_err(|source| JobError::Io {
+        path: out_dir.display().to_string(),
+        source,
+    })?;
     let case = cases::sphere_to_box_with_missing(4);
     let mut files = Vec::new();
     let mut put = |name: &str, bytes: &[u8]| -> Result<(), JobError> {
@@ -127,17 +157,42 @@ pub fn demo(out_dir: &Path, progress: &mut dyn FnMut(Method, &IterationReport)) 
         files.push(p);
         Ok(())
     };
-    put("template.ply", &mesh::io::ply_bytes(&case.template, mesh::io::PlyEncoding::BinaryLittleEndian))?;
-    put("scan.ply", &mesh::io::ply_bytes(&case.scan, mesh::io::PlyEncoding::BinaryLittleEndian))?;
-    put("template.landmarks", mesh::landmarks::landmarks_text(&case.template_landmarks).as_bytes())?;
-    put("scan.landmarks", mesh::landmarks::landmarks_text(&case.scan_landmarks).as_bytes())?;
+    put(
+        "template.ply",
+        &mesh::io::ply_bytes(&case.template, mesh::io::PlyEncoding::BinaryLittleEndian),
+    )?;
+    put(
+        "scan.ply",
+        &mesh::io::ply_bytes(&case.scan, mesh::io::PlyEncoding::BinaryLittleEndian),
+    )?;
+    put(
+        "template.landmarks",
+        mesh::landmarks::landmarks_text(&case.template_landmarks).as_bytes(),
+    )?;
+    put(
+        "scan.landmarks",
+        mesh::landmarks::landmarks_text(&case.scan_landmarks).as_bytes(),
+    )?;
     let mut methods = Vec::new();
-    for (method, opts) in [(Method::Paper, ConformOptions::paper()), (Method::Default, ConformOptions::default())] {
+    for (method, opts) in [
+        (Method::Paper, ConformOptions::paper()),
+        (Method::Default, ConformOptions::default()),
+    ] {
         let lm = Some((&case.template_landmarks[..], &case.scan_landmarks[..]));
-        let r = conform::conform(&case.template, &case.scan, lm, &opts, &mut |it| progress(method, it))?;
+        let r = conform::conform(&case.template, &case.scan, lm, &opts, &mut |it| {
+            progress(method, it)
+        })?;
         let name = format!("{:?}", method).to_lowercase();
-        put(&format!("conformed-{name}.ply"), &mesh::io::ply_bytes(&r.mesh, mesh::io::PlyEncoding::BinaryLittleEndian))?;
-        put(&format!("report-{name}.json"), serde_json::to_string_pretty(&r.report).expect("serialises").as_bytes())?;
+        put(
+            &format!("conformed-{name}.ply"),
+            &mesh::io::ply_bytes(&r.mesh, mesh::io::PlyEncoding::BinaryLittleEndian),
+        )?;
+        put(
+            &format!("report-{name}.json"),
+            serde_json::to_string_pretty(&r.report)
+                .expect("serialises")
+                .as_bytes(),
+        )?;
         let f = cases::box_figures(&r.mesh);
         methods.push(DemoFigures {
             method,
@@ -187,7 +242,9 @@ pub fn info(path: &Path, original: Option<&Path>) -> Result<MeshInfo, JobError> 
     };
     Ok(MeshInfo {
         topology: topology::report(&m),
-        bounding_box: m.bounding_box().map(|(a, b)| [[a.x, a.y, a.z], [b.x, b.y, b.z]]),
+        bounding_box: m
+            .bounding_box()
+            .map(|(a, b)| [[a.x, a.y, a.z], [b.x, b.y, b.z]]),
         diagonal: m.diagonal(),
         area: m.area(),
         has_normals: m.normals.is_some(),

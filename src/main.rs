@@ -9,7 +9,11 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 #[derive(Parser)]
-#[command(name = "conformd", version, about = "Photogrammetry station daemon: conform a template mesh onto scans")]
+#[command(
+    name = "conformd",
+    version,
+    about = "Photogrammetry station daemon: conform a template mesh onto scans"
+)]
 struct Cli {
     #[command(subcommand)]
     cmd: Cmd,
@@ -80,7 +84,16 @@ fn tick(pb: &ProgressBar, it: &IterationReport) {
 
 fn run(cli: Cli) -> Result<(), jobs::JobError> {
     match cli.cmd {
-        Cmd::Conform { template, scan, template_landmarks, scan_landmarks, config, method, out, report } => {
+        Cmd::Conform {
+            template,
+            scan,
+            template_landmarks,
+            scan_landmarks,
+            config,
+            method,
+            out,
+            report,
+        } => {
             let mut opts = match &config {
                 Some(p) => jobs::load_conform_options(p)?,
                 None => ConformOptions::default(),
@@ -110,7 +123,11 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
                 r.iterations.len(),
                 r.seconds.total,
                 r.method,
-                if r.converged { "" } else { ", iteration limit reached" }
+                if r.converged {
+                    ""
+                } else {
+                    ", iteration limit reached"
+                }
             );
             println!(
                 "mean distance to the scan {:.3e} ({:.3}% of the diagonal); {} vertices matched, {} filled; {} folded triangles; watertight {}",
@@ -140,7 +157,9 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
             if let Some((_, b)) = bars.last() {
                 b.finish_and_clear();
             }
-            println!("The paper's sphere-to-box case with missing data (the +x face and a disc on top removed):");
+            println!(
+                "The paper's sphere-to-box case with missing data (the +x face and a disc on top removed):"
+            );
             for m in &s.methods {
                 println!(
                     "  {:<8} {:>2} iterations {:.2} s: missing region ({} vertices) mean {:.2}%, 90th percentile {:.2}% of the box diagonal from the true box; watertight {}, folded {}",

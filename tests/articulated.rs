@@ -11,15 +11,27 @@ use conformd::conform::ConformOptions;
 use conformd::synth::cases::{self, ArticulatedSpec, correspondence_error};
 
 fn errors(case: &cases::Case, r: &conformd::conform::Conformed) -> cases::CorrespondenceError {
-    correspondence_error(&r.mesh.vertices, case.truth.as_ref().unwrap(), &case.in_hole, &case.template.triangles)
+    correspondence_error(
+        &r.mesh.vertices,
+        case.truth.as_ref().unwrap(),
+        &case.in_hole,
+        &case.template.triangles,
+    )
 }
 
 #[test]
 #[cfg_attr(debug_assertions, ignore = "heavy: runs in release builds")]
 fn with_landmarks_default_beats_the_paper() {
-    let case = cases::articulated(&ArticulatedSpec { template_vertices: 8000, scan_points: 80_000, ..Default::default() });
+    let case = cases::articulated(&ArticulatedSpec {
+        template_vertices: 8000,
+        scan_points: 80_000,
+        ..Default::default()
+    });
     let holes = case.in_hole.iter().filter(|h| **h).count();
-    assert!(holes > case.template.vertices.len() / 20, "the scan has real holes ({holes} hidden vertices)");
+    assert!(
+        holes > case.template.vertices.len() / 20,
+        "the scan has real holes ({holes} hidden vertices)"
+    );
     let d = common::run(&case, &ConformOptions::default(), true);
     let p = common::run(&case, &ConformOptions::paper(), true);
     let (ed, ep) = (errors(&case, &d), errors(&case, &p));
@@ -27,14 +39,37 @@ fn with_landmarks_default_beats_the_paper() {
         "articulated, landmarks, {} vertices ({holes} in holes), {} scan points:\n  default: mean {:.3}% holes {:.3}% p95 {:.3}% max {:.3}% flipped {} ({:.2} s)\n  paper:   mean {:.3}% holes {:.3}% p95 {:.3}% max {:.3}% flipped {} ({:.2} s)",
         case.template.vertices.len(),
         case.scan.vertices.len(),
-        ed.mean * 100.0, ed.mean_in_holes * 100.0, ed.p95 * 100.0, ed.max * 100.0, ed.flipped, d.report.seconds.total,
-        ep.mean * 100.0, ep.mean_in_holes * 100.0, ep.p95 * 100.0, ep.max * 100.0, ep.flipped, p.report.seconds.total,
+        ed.mean * 100.0,
+        ed.mean_in_holes * 100.0,
+        ed.p95 * 100.0,
+        ed.max * 100.0,
+        ed.flipped,
+        d.report.seconds.total,
+        ep.mean * 100.0,
+        ep.mean_in_holes * 100.0,
+        ep.p95 * 100.0,
+        ep.max * 100.0,
+        ep.flipped,
+        p.report.seconds.total,
     );
-    assert!(ed.mean < 0.0075, "default mean correspondence error {:.3}%", ed.mean * 100.0);
-    assert!(ed.mean_in_holes < 0.01, "default error in holes {:.3}%", ed.mean_in_holes * 100.0);
+    assert!(
+        ed.mean < 0.0075,
+        "default mean correspondence error {:.3}%",
+        ed.mean * 100.0
+    );
+    assert!(
+        ed.mean_in_holes < 0.01,
+        "default error in holes {:.3}%",
+        ed.mean_in_holes * 100.0
+    );
     assert_eq!(ed.flipped, 0, "no flipped triangles");
     assert_eq!(d.report.folded_triangles, 0);
-    assert!(ed.mean < 0.9 * ep.mean, "default {:.3}% is not clearly below paper {:.3}%", ed.mean * 100.0, ep.mean * 100.0);
+    assert!(
+        ed.mean < 0.9 * ep.mean,
+        "default {:.3}% is not clearly below paper {:.3}%",
+        ed.mean * 100.0,
+        ep.mean * 100.0
+    );
     assert!(ed.mean_in_holes < 0.8 * ep.mean_in_holes);
     assert!(ed.p95 < 0.8 * ep.p95);
     assert_eq!(d.mesh.triangles, case.template.triangles);
@@ -54,11 +89,24 @@ fn without_landmarks_turned_and_shifted() {
     let e = errors(&case, &d);
     eprintln!(
         "articulated, no landmarks, turned 35 deg and shifted: mean {:.3}% holes {:.3}% p95 {:.3}% max {:.3}% flipped {} ({:.2} s)",
-        e.mean * 100.0, e.mean_in_holes * 100.0, e.p95 * 100.0, e.max * 100.0, e.flipped, d.report.seconds.total
+        e.mean * 100.0,
+        e.mean_in_holes * 100.0,
+        e.p95 * 100.0,
+        e.max * 100.0,
+        e.flipped,
+        d.report.seconds.total
     );
     // within 1.5 times the landmark bound of 0.75%
-    assert!(e.mean < 1.5 * 0.0075, "mean correspondence error {:.3}%", e.mean * 100.0);
-    assert!(e.mean_in_holes < 1.5 * 0.01, "error in holes {:.3}%", e.mean_in_holes * 100.0);
+    assert!(
+        e.mean < 1.5 * 0.0075,
+        "mean correspondence error {:.3}%",
+        e.mean * 100.0
+    );
+    assert!(
+        e.mean_in_holes < 1.5 * 0.01,
+        "error in holes {:.3}%",
+        e.mean_in_holes * 100.0
+    );
     assert_eq!(e.flipped, 0, "no flipped triangles");
 }
 
@@ -67,7 +115,11 @@ fn without_landmarks_turned_and_shifted() {
 fn stiffer_groups_keep_their_shape() {
     // The paper's section 3.2 remedy: a larger spring constant for parts that should not
     // distort (ears, hands, feet).
-    let case = cases::articulated(&ArticulatedSpec { template_vertices: 5000, scan_points: 40_000, ..Default::default() });
+    let case = cases::articulated(&ArticulatedSpec {
+        template_vertices: 5000,
+        scan_points: 40_000,
+        ..Default::default()
+    });
     let hands: Vec<u32> = case.template.groups["hands"].clone();
     let distortion = |mesh: &conformd::mesh::Mesh| -> f64 {
         let tris: Vec<[u32; 3]> = case
@@ -77,13 +129,17 @@ fn stiffer_groups_keep_their_shape() {
             .filter(|t| t.iter().all(|v| hands.binary_search(v).is_ok()))
             .copied()
             .collect();
-        conformd::mesh::quality::variation(&case.template.vertices, &mesh.vertices, &tris).edge_length.std
+        conformd::mesh::quality::variation(&case.template.vertices, &mesh.vertices, &tris)
+            .edge_length
+            .std
     };
     let soft = common::run(&case, &ConformOptions::default(), true);
     let mut opts = ConformOptions::default();
     opts.stiffness.insert("hands".into(), 20.0);
     let stiff = common::run(&case, &opts, true);
     let (a, b) = (distortion(&soft.mesh), distortion(&stiff.mesh));
-    eprintln!("hands' edge-length variation std: {a:.4} with default springs, {b:.4} with springs x20");
+    eprintln!(
+        "hands' edge-length variation std: {a:.4} with default springs, {b:.4} with springs x20"
+    );
     assert!(b < 0.8 * a, "stiffer hands distort less: {a:.4} -> {b:.4}");
 }

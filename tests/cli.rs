@@ -1,20 +1,28 @@
 //! The `conformd` binary end to end on files: conform with landmarks and without, the
 //! report's per-iteration figures, `info`, and the one-line error a bad file gets.
 
-use conformd::mesh::io::{PlyEncoding, ply_bytes, obj_bytes};
+use conformd::mesh::io::{PlyEncoding, obj_bytes, ply_bytes};
 use conformd::mesh::landmarks::landmarks_text;
 use conformd::synth::cases;
 use std::path::Path;
 use std::process::Command;
 
 fn conformd(args: &[&str], dir: &Path) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_conformd")).args(args).current_dir(dir).output().expect("runs")
+    Command::new(env!("CARGO_BIN_EXE_conformd"))
+        .args(args)
+        .current_dir(dir)
+        .output()
+        .expect("runs")
 }
 
 fn write_case(dir: &Path) -> cases::Case {
     let case = cases::sphere_to_box_with_missing(3);
     std::fs::write(dir.join("template.obj"), obj_bytes(&case.template)).unwrap();
-    std::fs::write(dir.join("scan.ply"), ply_bytes(&case.scan, PlyEncoding::Ascii)).unwrap();
+    std::fs::write(
+        dir.join("scan.ply"),
+        ply_bytes(&case.scan, PlyEncoding::Ascii),
+    )
+    .unwrap();
     std::fs::write(dir.join("t.lm"), landmarks_text(&case.template_landmarks)).unwrap();
     std::fs::write(dir.join("s.lm"), landmarks_text(&case.scan_landmarks)).unwrap();
     case
@@ -26,33 +34,72 @@ fn conform_with_landmarks_writes_mesh_and_report() {
     let case = write_case(dir.path());
     let out = conformd(
         &[
-            "conform", "--template", "template.obj", "--scan", "scan.ply", "--template-landmarks", "t.lm",
-            "--scan-landmarks", "s.lm", "--out", "out.ply", "--report", "report.json",
+            "conform",
+            "--template",
+            "template.obj",
+            "--scan",
+            "scan.ply",
+            "--template-landmarks",
+            "t.lm",
+            "--scan-landmarks",
+            "s.lm",
+            "--out",
+            "out.ply",
+            "--report",
+            "report.json",
         ],
         dir.path(),
     );
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(stdout.contains("wrote out.ply") && stdout.contains("wrote report.json"), "{stdout}");
+    assert!(
+        stdout.contains("wrote out.ply") && stdout.contains("wrote report.json"),
+        "{stdout}"
+    );
     let result = conformd::mesh::read_mesh(&dir.path().join("out.ply")).unwrap();
-    assert_eq!(result.triangles, case.template.triangles, "template topology kept");
+    assert_eq!(
+        result.triangles, case.template.triangles,
+        "template topology kept"
+    );
     let f = cases::box_figures(&result);
-    assert!(f.missing_mean < 0.02, "missing region mean {:.3}%", f.missing_mean * 100.0);
+    assert!(
+        f.missing_mean < 0.02,
+        "missing region mean {:.3}%",
+        f.missing_mean * 100.0
+    );
     let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.path().join("report.json")).unwrap()).unwrap();
+        serde_json::from_str(&std::fs::read_to_string(dir.path().join("report.json")).unwrap())
+            .unwrap();
     let its = report["iterations"].as_array().unwrap();
     assert!(!its.is_empty());
-    for key in ["matched", "filled", "mean_distance", "max_update", "seconds", "variation"] {
+    for key in [
+        "matched",
+        "filled",
+        "mean_distance",
+        "max_update",
+        "seconds",
+        "variation",
+    ] {
         assert!(its[0].get(key).is_some(), "iteration report has {key}");
     }
     for key in ["edge_length", "angle", "area"] {
-        assert!(its[0]["variation"][key]["std"].as_f64().is_some(), "variation has {key}");
+        assert!(
+            its[0]["variation"][key]["std"].as_f64().is_some(),
+            "variation has {key}"
+        );
     }
     assert_eq!(report["global"]["kind"], "landmark_rbf");
     assert!(report["watertight_result"].as_bool().unwrap());
     // no temporary files left behind
-    let leftovers: Vec<_> = std::fs::read_dir(dir.path()).unwrap().filter_map(|e| e.ok())
-        .filter(|e| e.file_name().to_string_lossy().contains(".tmp-")).collect();
+    let leftovers: Vec<_> = std::fs::read_dir(dir.path())
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .filter(|e| e.file_name().to_string_lossy().contains(".tmp-"))
+        .collect();
     assert!(leftovers.is_empty());
 }
 
@@ -60,15 +107,49 @@ fn conform_with_landmarks_writes_mesh_and_report() {
 fn conform_without_landmarks_and_paper_method() {
     let dir = tempfile::tempdir().unwrap();
     write_case(dir.path());
-    let out = conformd(&["conform", "--template", "template.obj", "--scan", "scan.ply", "--out", "auto.obj"], dir.path());
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    assert!(dir.path().join("auto.obj").exists());
     let out = conformd(
-        &["conform", "--method", "paper", "--template", "template.obj", "--scan", "scan.ply", "--template-landmarks", "t.lm",
-          "--scan-landmarks", "s.lm", "--out", "paper.ply", "--report", "paper.json"],
+        &[
+            "conform",
+            "--template",
+            "template.obj",
+            "--scan",
+            "scan.ply",
+            "--out",
+            "auto.obj",
+        ],
         dir.path(),
     );
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(dir.path().join("auto.obj").exists());
+    let out = conformd(
+        &[
+            "conform",
+            "--method",
+            "paper",
+            "--template",
+            "template.obj",
+            "--scan",
+            "scan.ply",
+            "--template-landmarks",
+            "t.lm",
+            "--scan-landmarks",
+            "s.lm",
+            "--out",
+            "paper.ply",
+            "--report",
+            "paper.json",
+        ],
+        dir.path(),
+    );
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let report = std::fs::read_to_string(dir.path().join("paper.json")).unwrap();
     assert!(report.contains("\"method\": \"paper\""));
 }
@@ -79,43 +160,118 @@ fn bad_inputs_give_one_clear_line() {
     write_case(dir.path());
     let bytes = std::fs::read(dir.path().join("scan.ply")).unwrap();
     std::fs::write(dir.path().join("cut.ply"), &bytes[..bytes.len() * 2 / 3]).unwrap();
-    let out = conformd(&["conform", "--template", "template.obj", "--scan", "cut.ply", "--out", "x.ply"], dir.path());
+    let out = conformd(
+        &[
+            "conform",
+            "--template",
+            "template.obj",
+            "--scan",
+            "cut.ply",
+            "--out",
+            "x.ply",
+        ],
+        dir.path(),
+    );
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
-    assert!(err.starts_with("conformd: cut.ply:") && err.contains("truncated"), "{err}");
-    assert!(!dir.path().join("x.ply").exists(), "nothing written on failure");
+    assert!(
+        err.starts_with("conformd: cut.ply:") && err.contains("truncated"),
+        "{err}"
+    );
+    assert!(
+        !dir.path().join("x.ply").exists(),
+        "nothing written on failure"
+    );
 
-    std::fs::write(dir.path().join("bad.toml"), "max_iterations = 5\nmax_distanse = 0.1\n").unwrap();
+    std::fs::write(
+        dir.path().join("bad.toml"),
+        "max_iterations = 5\nmax_distanse = 0.1\n",
+    )
+    .unwrap();
     let out = conformd(
-        &["conform", "--template", "template.obj", "--scan", "scan.ply", "--config", "bad.toml", "--out", "x.ply"],
+        &[
+            "conform",
+            "--template",
+            "template.obj",
+            "--scan",
+            "scan.ply",
+            "--config",
+            "bad.toml",
+            "--out",
+            "x.ply",
+        ],
         dir.path(),
     );
     let err = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success() && err.contains("bad.toml") && err.contains("max_distanse"), "{err}");
+    assert!(
+        !out.status.success() && err.contains("bad.toml") && err.contains("max_distanse"),
+        "{err}"
+    );
 
     let out = conformd(
-        &["conform", "--template", "template.obj", "--scan", "scan.ply", "--template-landmarks", "t.lm", "--out", "x.ply"],
+        &[
+            "conform",
+            "--template",
+            "template.obj",
+            "--scan",
+            "scan.ply",
+            "--template-landmarks",
+            "t.lm",
+            "--out",
+            "x.ply",
+        ],
         dir.path(),
     );
     let err = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success() && err.contains("--scan-landmarks"), "{err}");
+    assert!(
+        !out.status.success() && err.contains("--scan-landmarks"),
+        "{err}"
+    );
 }
 
 #[test]
 fn config_file_and_info() {
     let dir = tempfile::tempdir().unwrap();
     write_case(dir.path());
-    std::fs::write(dir.path().join("station.toml"), "[conform]\nmax_iterations = 4\n[conform.align]\ntrim = 0.9\n").unwrap();
+    std::fs::write(
+        dir.path().join("station.toml"),
+        "[conform]\nmax_iterations = 4\n[conform.align]\ntrim = 0.9\n",
+    )
+    .unwrap();
     let out = conformd(
-        &["conform", "--template", "template.obj", "--scan", "scan.ply", "--config", "station.toml", "--out", "c.ply", "--report", "r.json"],
+        &[
+            "conform",
+            "--template",
+            "template.obj",
+            "--scan",
+            "scan.ply",
+            "--config",
+            "station.toml",
+            "--out",
+            "c.ply",
+            "--report",
+            "r.json",
+        ],
         dir.path(),
     );
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.path().join("r.json")).unwrap()).unwrap();
-    assert!(report["iterations"].as_array().unwrap().len() <= 4, "the config's iteration limit applies");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.path().join("r.json")).unwrap()).unwrap();
+    assert!(
+        report["iterations"].as_array().unwrap().len() <= 4,
+        "the config's iteration limit applies"
+    );
 
     let out = conformd(&["info", "c.ply", "--original", "template.obj"], dir.path());
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let info: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(info["topology"]["watertight"], true);
     assert!(info["variation"]["edge_length"]["std"].as_f64().is_some());
@@ -126,5 +282,8 @@ fn example_config_documents_the_defaults() {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/conform.example.toml");
     let loaded = conformd::jobs::load_conform_options(&path).expect("the example config loads");
     let as_json = |o: &conformd::conform::ConformOptions| serde_json::to_value(o).unwrap();
-    assert_eq!(as_json(&loaded), as_json(&conformd::conform::ConformOptions::default()));
+    assert_eq!(
+        as_json(&loaded),
+        as_json(&conformd::conform::ConformOptions::default())
+    );
 }

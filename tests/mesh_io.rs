@@ -1,9 +1,9 @@
 //! Mesh files round trip through the writers and readers, on disk and atomically.
 
+use conformd::mesh::V3;
 use conformd::mesh::io::{PlyEncoding, ply_bytes, read_ply_bytes};
 use conformd::mesh::{read_mesh, topology, write_mesh};
 use conformd::synth::{icosphere, scanner, tessellated_box};
-use conformd::mesh::V3;
 
 #[test]
 fn meshes_and_point_clouds_round_trip() {
@@ -14,7 +14,13 @@ fn meshes_and_point_clouds_round_trip() {
         write_mesh(&p, &sphere).unwrap();
         let back = read_mesh(&p).unwrap();
         assert_eq!(back.triangles, sphere.triangles, "{name}");
-        assert!(back.vertices.iter().zip(&sphere.vertices).all(|(a, b)| (a - b).norm() < 1e-12), "{name}");
+        assert!(
+            back.vertices
+                .iter()
+                .zip(&sphere.vertices)
+                .all(|(a, b)| (a - b).norm() < 1e-12),
+            "{name}"
+        );
         assert!(topology::report(&back).watertight, "{name}");
     }
     let cloud = scanner::sample_points(&sphere, &vec![true; sphere.triangles.len()], 500, 0.001, 3);
@@ -23,7 +29,11 @@ fn meshes_and_point_clouds_round_trip() {
         assert!(back.is_point_cloud());
         assert_eq!(back.vertices.len(), 500);
         let n = back.normals.unwrap();
-        assert!(n.iter().zip(cloud.normals.as_ref().unwrap()).all(|(a, b)| (a - b).norm() < 1e-9));
+        assert!(
+            n.iter()
+                .zip(cloud.normals.as_ref().unwrap())
+                .all(|(a, b)| (a - b).norm() < 1e-9)
+        );
     }
 }
 

@@ -1,7 +1,9 @@
 //! Property tests: random bytes, and valid files cut short or with bytes changed, fed to
 //! every reader. Each must return a mesh or an error, never panic.
 
-use conformd::mesh::io::{PlyEncoding, obj_bytes, ply_bytes, read_obj_bytes, read_off_bytes, read_ply_bytes};
+use conformd::mesh::io::{
+    PlyEncoding, obj_bytes, ply_bytes, read_obj_bytes, read_off_bytes, read_ply_bytes,
+};
 use conformd::mesh::landmarks::{parse_pp, parse_text};
 use conformd::synth::icosphere;
 use proptest::prelude::*;

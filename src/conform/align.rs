@@ -25,7 +25,12 @@ pub struct AlignOptions {
 
 impl Default for AlignOptions {
     fn default() -> Self {
-        AlignOptions { template_up: None, scan_up: None, icp_iterations: 40, trim: 0.85 }
+        AlignOptions {
+            template_up: None,
+            scan_up: None,
+            icp_iterations: 40,
+            trim: 0.85,
+        }
     }
 }
 
@@ -42,12 +47,19 @@ pub struct AlignReport {
 
 fn principal_frame(p: &[V3]) -> (V3, Matrix3<f64>, f64) {
     let c = p.iter().sum::<V3>() / p.len() as f64;
-    let cov = p.iter().fold(Matrix3::zeros(), |m, q| m + (q - c) * (q - c).transpose()) / p.len() as f64;
+    let cov = p
+        .iter()
+        .fold(Matrix3::zeros(), |m, q| m + (q - c) * (q - c).transpose())
+        / p.len() as f64;
     let e = cov.symmetric_eigen();
     // sort axes by decreasing variance
     let mut idx = [0usize, 1, 2];
     idx.sort_by(|&a, &b| e.eigenvalues[b].total_cmp(&e.eigenvalues[a]));
-    let mut m = Matrix3::from_columns(&[e.eigenvectors.column(idx[0]), e.eigenvectors.column(idx[1]), e.eigenvectors.column(idx[2])]);
+    let mut m = Matrix3::from_columns(&[
+        e.eigenvectors.column(idx[0]),
+        e.eigenvectors.column(idx[1]),
+        e.eigenvectors.column(idx[2]),
+    ]);
     if m.determinant() < 0.0 {
         m.set_column(2, &(-m.column(2)));
     }
@@ -55,7 +67,11 @@ fn principal_frame(p: &[V3]) -> (V3, Matrix3<f64>, f64) {
 }
 
 /// Finds the similarity taking the template (`template` positions) onto the scan.
-pub fn auto_align(template: &[V3], scan: &ScanSurface, opts: &AlignOptions) -> (Similarity, AlignReport) {
+pub fn auto_align(
+    template: &[V3],
+    scan: &ScanSurface,
+    opts: &AlignOptions,
+) -> (Similarity, AlignReport) {
     let subsample = |k: usize| -> Vec<V3> {
         let step = (scan.points.len() / k).max(1);
         scan.points.iter().step_by(step).copied().collect()
@@ -77,18 +93,33 @@ pub fn auto_align(template: &[V3], scan: &ScanSurface, opts: &AlignOptions) -> (
     for signs in [[1., 1., 1.], [1., -1., -1.], [-1., 1., -1.], [-1., -1., 1.]] {
         let d = Matrix3::from_diagonal(&V3::from(signs));
         let r = Rotation3::from_matrix_unchecked(fs * d * ft.transpose());
-        if let Some((tu, su)) = up {
-            if (r * tu).dot(&su) < 0.0 {
-                continue;
-            }
+        if let Some((tu, su)) = up
+            && (r * tu).dot(&su) < 0.0
+        {
+            continue;
         }
-        let init = Similarity { scale: scale0, rotation: r, translation: cs - r * ct * scale0 };
-        let quick = AlignOptions { icp_iterations: opts.icp_iterations / 2, ..opts.clone() };
+        let init = Similarity {
+            scale: scale0,
+            rotation: r,
+            translation: cs - r * ct * scale0,
+        };
+        let quick = AlignOptions {
+            icp_iterations: opts.icp_iterations / 2,
+            ..opts.clone()
+        };
         results.push(icp(&tree, template, &samples, init, &quick, scan.diagonal));
     }
     if results.is_empty() {
         // hints exclude everything only if they contradict the data; fall back to all
-        return auto_align(template, scan, &AlignOptions { template_up: None, scan_up: None, ..opts.clone() });
+        return auto_align(
+            template,
+            scan,
+            &AlignOptions {
+                template_up: None,
+                scan_up: None,
+                ..opts.clone()
+            },
+        );
     }
     results.sort_by(|a, b| a.0.total_cmp(&b.0));
     results[0] = icp(&tree, template, &fine, results[0].1, opts, scan.diagonal);
@@ -128,8 +159,11 @@ fn icp(
         let src: Vec<V3> = pairs.iter().map(|p| template[p.2]).collect();
         let dst: Vec<V3> = pairs.iter().map(|p| samples[p.1]).collect();
         let next = fit_similarity(&src, &dst, None, true);
-        let rms = (pairs.iter().map(|p| p.0).sum::<f64>() / pairs.len().max(1) as f64).sqrt() * t.scale / diag;
-        let moved = (next.translation - t.translation).norm() / diag + (next.rotation.matrix() - t.rotation.matrix()).norm();
+        let rms = (pairs.iter().map(|p| p.0).sum::<f64>() / pairs.len().max(1) as f64).sqrt()
+            * t.scale
+            / diag;
+        let moved = (next.translation - t.translation).norm() / diag
+            + (next.rotation.matrix() - t.rotation.matrix()).norm();
         residual = rms;
         t = next;
         if moved < 1e-7 {

@@ -33,7 +33,11 @@ pub fn build(rest: &[V3], neighbours: &[Vec<u32>], count: usize) -> Graph {
     let mut nodes = vec![0usize];
     let mut dist: Vec<f64> = rest.iter().map(|p| (p - rest[0]).norm_squared()).collect();
     while nodes.len() < count {
-        let (far, _) = dist.iter().enumerate().max_by(|a, b| a.1.total_cmp(b.1)).unwrap();
+        let (far, _) = dist
+            .iter()
+            .enumerate()
+            .max_by(|a, b| a.1.total_cmp(b.1))
+            .unwrap();
         nodes.push(far);
         for (d, p) in dist.iter_mut().zip(rest) {
             *d = d.min((p - rest[far]).norm_squared());
@@ -101,12 +105,27 @@ pub fn build(rest: &[V3], neighbours: &[Vec<u32>], count: usize) -> Graph {
             w
         })
         .collect();
-    Graph { rest: node_rest, edges, blend }
+    Graph {
+        rest: node_rest,
+        edges,
+        blend,
+    }
 }
 
-#[derive(Clone, Copy, PartialEq, PartialOrd)]
+/// A distance ordered by `total_cmp`, for the Dijkstra heap.
+#[derive(Clone, Copy)]
 struct Ordered(f64);
+impl PartialEq for Ordered {
+    fn eq(&self, o: &Self) -> bool {
+        self.cmp(o).is_eq()
+    }
+}
 impl Eq for Ordered {}
+impl PartialOrd for Ordered {
+    fn partial_cmp(&self, o: &Self) -> Option<std::cmp::Ordering> {
+        Some(self.cmp(o))
+    }
+}
 impl Ord for Ordered {
     fn cmp(&self, o: &Self) -> std::cmp::Ordering {
         self.0.total_cmp(&o.0)
@@ -122,13 +141,19 @@ pub struct Deformation {
 impl Graph {
     /// Vertex positions under a deformation: `x_v = sum_k w_vk (p_k + R_k (r_v - r_k))`.
     pub fn apply(&self, d: &Deformation, rest: &[V3]) -> Vec<V3> {
-        let rm: Vec<Matrix3<f64>> = d.rot.iter().map(|q| *q.to_rotation_matrix().matrix()).collect();
+        let rm: Vec<Matrix3<f64>> = d
+            .rot
+            .iter()
+            .map(|q| *q.to_rotation_matrix().matrix())
+            .collect();
         (0..rest.len())
             .into_par_iter()
             .map(|v| {
                 self.blend[v]
                     .iter()
-                    .map(|&(k, w)| (d.pos[k as usize] + rm[k as usize] * (rest[v] - self.rest[k as usize])) * w)
+                    .map(|&(k, w)| {
+                        (d.pos[k as usize] + rm[k as usize] * (rest[v] - self.rest[k as usize])) * w
+                    })
                     .sum()
             })
             .collect()
@@ -169,7 +194,10 @@ pub fn run(
     let nn = graph.rest.len();
     let n = rest.len();
     // start: each node where the global mapping put its vertex, rotations fitted
-    let mut def = Deformation { pos: vec![V3::zeros(); nn], rot: vec![UnitQuaternion::identity(); nn] };
+    let mut def = Deformation {
+        pos: vec![V3::zeros(); nn],
+        rot: vec![UnitQuaternion::identity(); nn],
+    };
     {
         let mut acc = vec![(V3::zeros(), 0.0); nn];
         for v in 0..n {
@@ -185,10 +213,16 @@ pub fn run(
     fit_node_rotations(graph, &mut def);
     let mut x = graph.apply(&def, rest);
     for it in 0..s.iterations {
-        let f = if s.iterations > 1 { it as f64 / (s.iterations - 1) as f64 } else { 1.0 };
+        let f = if s.iterations > 1 {
+            it as f64 / (s.iterations - 1) as f64
+        } else {
+            1.0
+        };
         let eps = s.epsilon_start * (s.epsilon_end / s.epsilon_start).powf(f);
         let lim = MatchLimits {
-            max_distance: s.max_distance_start * (s.max_distance_end / s.max_distance_start).powf(f) * diag,
+            max_distance: s.max_distance_start
+                * (s.max_distance_end / s.max_distance_start).powf(f)
+                * diag,
             min_normal_cos: s.min_normal_cos,
         };
         let normals = vertex_normals(&x, tris);
@@ -196,17 +230,30 @@ pub fn run(
         let stride = (n / 4000).max(1);
         let matches: Vec<_> = (0..n)
             .into_par_iter()
-            .map(|v| if v % stride == 0 { scan.query(&x[v], &normals[v], &lim) } else { None })
+            .map(|v| {
+                if v % stride == 0 {
+                    scan.query(&x[v], &normals[v], &lim)
+                } else {
+                    None
+                }
+            })
             .collect();
         let sampled = n.div_ceil(stride);
         // Global step: node positions, with rotations fixed. Each vertex is linear in
         // the node positions: x_v = sum_k w_vk p_k + c_v.
-        let rm: Vec<Matrix3<f64>> = def.rot.iter().map(|q| *q.to_rotation_matrix().matrix()).collect();
+        let rm: Vec<Matrix3<f64>> = def
+            .rot
+            .iter()
+            .map(|q| *q.to_rotation_matrix().matrix())
+            .collect();
         let mut a = DMatrix::<f64>::zeros(nn, nn);
         let mut b = DMatrix::<f64>::zeros(nn, 3);
         for v in 0..n {
             let bl = &graph.blend[v];
-            let c: V3 = bl.iter().map(|&(k, w)| rm[k as usize] * (rest[v] - graph.rest[k as usize]) * w).sum();
+            let c: V3 = bl
+                .iter()
+                .map(|&(k, w)| rm[k as usize] * (rest[v] - graph.rest[k as usize]) * w)
+                .sum();
             let mut add = |weight: f64, target: V3| {
                 for &(i, wi) in bl {
                     for &(j, wj) in bl {
@@ -219,7 +266,10 @@ pub fn run(
             };
             if let Some(m) = &matches[v] {
                 let foot = x[v] - m.normal * m.normal.dot(&(x[v] - m.point));
-                add(m.weight, foot * (1.0 - s.point_to_point) + m.point * s.point_to_point);
+                add(
+                    m.weight,
+                    foot * (1.0 - s.point_to_point) + m.point * s.point_to_point,
+                );
             }
             if landmark_weight[v] > 0.0 {
                 add(landmark_weight[v], landmark_target[v]);
@@ -238,7 +288,12 @@ pub fn run(
                     let p = scan.points[i];
                     let sn = scan.normal(i);
                     let r2 = lim.max_distance * lim.max_distance;
-                    let mut nb = tree.nearest_n_within::<kiddo::SquaredEuclidean>(&[p.x, p.y, p.z], r2, std::num::NonZero::new(8).unwrap(), false);
+                    let mut nb = tree.nearest_n_within::<kiddo::SquaredEuclidean>(
+                        &[p.x, p.y, p.z],
+                        r2,
+                        std::num::NonZero::new(8).unwrap(),
+                        false,
+                    );
                     nb.sort_unstable_by(|a, b| a.distance.total_cmp(&b.distance));
                     nb.iter()
                         .map(|m| m.item as usize)
@@ -251,7 +306,10 @@ pub fn run(
                 let foot = x[v] - sn * sn.dot(&(x[v] - p));
                 let target = foot * (1.0 - s.point_to_point) + p * s.point_to_point;
                 let bl = &graph.blend[v];
-                let c: V3 = bl.iter().map(|&(k, wk)| rm[k as usize] * (rest[v] - graph.rest[k as usize]) * wk).sum();
+                let c: V3 = bl
+                    .iter()
+                    .map(|&(k, wk)| rm[k as usize] * (rest[v] - graph.rest[k as usize]) * wk)
+                    .sum();
                 for &(i, wi) in bl {
                     for &(j, wj) in bl {
                         a[(i as usize, j as usize)] += w * wi * wj;
@@ -296,9 +354,16 @@ pub fn run(
     }
     let rm: Vec<UnitQuaternion<f64>> = (0..n)
         .map(|v| {
-            let m: Matrix3<f64> =
-                graph.blend[v].iter().map(|&(k, w)| def.rot[k as usize].to_rotation_matrix().matrix() * w).sum();
-            super::solve::polar_rotation(&m, graph.blend[v].first().map_or(UnitQuaternion::identity(), |b| def.rot[b.0 as usize]))
+            let m: Matrix3<f64> = graph.blend[v]
+                .iter()
+                .map(|&(k, w)| def.rot[k as usize].to_rotation_matrix().matrix() * w)
+                .sum();
+            super::solve::polar_rotation(
+                &m,
+                graph.blend[v]
+                    .first()
+                    .map_or(UnitQuaternion::identity(), |b| def.rot[b.0 as usize]),
+            )
         })
         .collect();
     (x, rm)

@@ -102,13 +102,22 @@ impl ScanSurface {
                 Some(n) if n.iter().all(|v| v.norm() > 0.5) => (n.clone(), true),
                 _ => (estimate_normals(&points, &tree), false),
             };
-            Index::Cloud { points: points.clone(), normals, oriented }
+            Index::Cloud {
+                points: points.clone(),
+                normals,
+                oriented,
+            }
         } else {
             let verts: Vec<PVec> = points.iter().map(|p| PVec::new(p.x, p.y, p.z)).collect();
             let tri = TriMesh::new(verts, scan.triangles.clone())
                 .map_err(|e| ScanError::Invalid(format!("{e:?}")))?;
-            let face_normals =
-                (0..scan.triangles.len()).map(|t| scan.face_normal_scaled(t).try_normalize(0.0).unwrap_or_default()).collect();
+            let face_normals = (0..scan.triangles.len())
+                .map(|t| {
+                    scan.face_normal_scaled(t)
+                        .try_normalize(0.0)
+                        .unwrap_or_default()
+                })
+                .collect();
             let mut boundary_edge = HashSet::new();
             for ([a, b], c) in topology::edge_face_counts(&scan.triangles) {
                 if c == 1 {
@@ -123,7 +132,13 @@ impl ScanSurface {
                 boundary_edge,
             }
         };
-        Ok(ScanSurface { index, tree, points, spacing, diagonal })
+        Ok(ScanSurface {
+            index,
+            tree,
+            points,
+            spacing,
+            diagonal,
+        })
     }
 
     /// The scan's unit normal at point `i` (a mesh's vertex normal, or the cloud's given
@@ -148,7 +163,13 @@ impl ScanSurface {
             return None;
         }
         let (point, normal, oriented) = match &self.index {
-            Index::Mesh { tri, face_normals, vertex_normals, boundary_vertex, boundary_edge } => {
+            Index::Mesh {
+                tri,
+                face_normals,
+                vertex_normals,
+                boundary_vertex,
+                boundary_edge,
+            } => {
                 let (proj, (t, loc)) = tri.project_local_point_and_get_location_with_max_dist(
                     PVec::new(x.x, x.y, x.z),
                     false,
@@ -156,7 +177,9 @@ impl ScanSurface {
                 )?;
                 let corners = tri.indices()[t as usize];
                 let on_boundary = match loc {
-                    TrianglePointLocation::OnVertex(i) => boundary_vertex[corners[i as usize] as usize],
+                    TrianglePointLocation::OnVertex(i) => {
+                        boundary_vertex[corners[i as usize] as usize]
+                    }
                     TrianglePointLocation::OnEdge(e, _) => {
                         // parry's edge numbering: 0 = AB, 1 = BC, 2 = AC
                         let (a, b) = match e {
@@ -174,20 +197,30 @@ impl ScanSurface {
                 let p = V3::new(proj.point.x, proj.point.y, proj.point.z);
                 let normal = match loc.barycentric_coordinates() {
                     Some(bc) if !matches!(loc, TrianglePointLocation::OnFace(..)) => {
-                        let m = (0..3).map(|k| vertex_normals[corners[k] as usize] * bc[k]).sum::<V3>();
+                        let m = (0..3)
+                            .map(|k| vertex_normals[corners[k] as usize] * bc[k])
+                            .sum::<V3>();
                         m.try_normalize(0.0).unwrap_or(face_normals[t as usize])
                     }
                     _ => face_normals[t as usize],
                 };
                 (p, normal, true)
             }
-            Index::Cloud { points, normals, oriented } => {
+            Index::Cloud {
+                points,
+                normals,
+                oriented,
+            } => {
                 // bounded and unsorted: far vertices cost little, and only the nearest
                 // of the few neighbours needs finding
                 let r2 = lim.max_distance * lim.max_distance;
-                let nb = self.tree.nearest_n_within::<SquaredEuclidean>(&[x.x, x.y, x.z], r2, NonZero::new(CLOUD_K).unwrap(), false);
+                let nb = self.tree.nearest_n_within::<SquaredEuclidean>(
+                    &[x.x, x.y, x.z],
+                    r2,
+                    NonZero::new(CLOUD_K).unwrap(),
+                    false,
+                );
                 let first = nb.iter().min_by(|a, b| a.distance.total_cmp(&b.distance))?;
-                let p0 = points[first.item as usize];
                 let n0 = normals[first.item as usize];
                 let mut c = V3::zeros();
                 let mut nsum = V3::zeros();
@@ -203,11 +236,13 @@ impl ScanSurface {
                 // The foot must lie where there is data: within the patch the neighbours
                 // span around their centroid, else the vertex looks past the edge of a
                 // hole (all its neighbours lie to one side).
-                let reach = nb.iter().map(|m| (points[m.item as usize] - c).norm()).fold(self.spacing, f64::max);
+                let reach = nb
+                    .iter()
+                    .map(|m| (points[m.item as usize] - c).norm())
+                    .fold(self.spacing, f64::max);
                 if (foot - c).norm() > reach {
                     return None;
                 }
-                let _ = p0;
                 (foot, normal, *oriented)
             }
         };
@@ -222,10 +257,19 @@ impl ScanSurface {
         if cos < lim.min_normal_cos {
             return None;
         }
-        let normal = if oriented || normal.dot(n) >= 0.0 { normal } else { -normal };
+        let normal = if oriented || normal.dot(n) >= 0.0 {
+            normal
+        } else {
+            -normal
+        };
         let d = distance / lim.max_distance;
         let weight = cos.clamp(0.0, 1.0) * (1.0 - d * d).max(0.0);
-        (weight > 0.0).then_some(Match { point, normal, weight, distance })
+        (weight > 0.0).then_some(Match {
+            point,
+            normal,
+            weight,
+            distance,
+        })
     }
 }
 
@@ -238,7 +282,8 @@ fn estimate_normals(points: &[V3], tree: &ImmutableKdTree<f64, 3>) -> Vec<V3> {
     points
         .par_iter()
         .map(|p| {
-            let nb = tree.nearest_n::<SquaredEuclidean>(&[p.x, p.y, p.z], NonZero::new(12).unwrap());
+            let nb =
+                tree.nearest_n::<SquaredEuclidean>(&[p.x, p.y, p.z], NonZero::new(12).unwrap());
             let c = nb.iter().map(|m| points[m.item as usize]).sum::<V3>() / nb.len() as f64;
             let cov = nb.iter().fold(nalgebra::Matrix3::zeros(), |acc, m| {
                 let d = points[m.item as usize] - c;
@@ -262,7 +307,11 @@ mod tests {
         let mut m = Mesh::default();
         for j in 0..=n {
             for i in 0..=n {
-                m.vertices.push(V3::new(-1.0 + 2.0 * i as f64 / n as f64, -1.0 + 2.0 * j as f64 / n as f64, 0.0));
+                m.vertices.push(V3::new(
+                    -1.0 + 2.0 * i as f64 / n as f64,
+                    -1.0 + 2.0 * j as f64 / n as f64,
+                    0.0,
+                ));
             }
         }
         for j in 0..n {
@@ -276,14 +325,32 @@ mod tests {
     }
 
     fn check(surface: &ScanSurface) {
-        let lim = MatchLimits { max_distance: 0.2, min_normal_cos: 0.5 };
+        let lim = MatchLimits {
+            max_distance: 0.2,
+            min_normal_cos: 0.5,
+        };
         let up = V3::z();
-        let m = surface.query(&V3::new(0.3, -0.2, 0.1), &up, &lim).expect("above the patch: a match");
-        assert!((m.point - V3::new(0.3, -0.2, 0.0)).norm() < 1e-9 && (m.distance - 0.1).abs() < 1e-9);
+        let m = surface
+            .query(&V3::new(0.3, -0.2, 0.1), &up, &lim)
+            .expect("above the patch: a match");
+        assert!(
+            (m.point - V3::new(0.3, -0.2, 0.0)).norm() < 1e-9 && (m.distance - 0.1).abs() < 1e-9
+        );
         assert!(m.weight > 0.0 && m.weight <= 1.0);
-        assert!(surface.query(&V3::new(0.3, -0.2, 0.5), &up, &lim).is_none(), "too far");
-        assert!(surface.query(&V3::new(0.3, -0.2, 0.1), &-up, &lim).is_none(), "faces the wrong way");
-        assert!(surface.query(&V3::new(1.1, 0.0, 0.05), &up, &lim).is_none(), "past the scan's edge");
+        assert!(
+            surface.query(&V3::new(0.3, -0.2, 0.5), &up, &lim).is_none(),
+            "too far"
+        );
+        assert!(
+            surface
+                .query(&V3::new(0.3, -0.2, 0.1), &-up, &lim)
+                .is_none(),
+            "faces the wrong way"
+        );
+        assert!(
+            surface.query(&V3::new(1.1, 0.0, 0.05), &up, &lim).is_none(),
+            "past the scan's edge"
+        );
     }
 
     #[test]
@@ -293,12 +360,15 @@ mod tests {
 
     #[test]
     fn point_cloud_scan_labels_missing_data() {
-        let p = patch();
         let mut cloud = Mesh::new(Vec::new(), Vec::new());
         let n = 60;
         for j in 0..=n {
             for i in 0..=n {
-                cloud.vertices.push(V3::new(-1.0 + 2.0 * i as f64 / n as f64, -1.0 + 2.0 * j as f64 / n as f64, 0.0));
+                cloud.vertices.push(V3::new(
+                    -1.0 + 2.0 * i as f64 / n as f64,
+                    -1.0 + 2.0 * j as f64 / n as f64,
+                    0.0,
+                ));
             }
         }
         cloud.normals = Some(vec![V3::z(); cloud.vertices.len()]);
@@ -306,9 +376,11 @@ mod tests {
         // without normals they are estimated (sign unknown): wrong-way faces still match
         let bare = Mesh::new(cloud.vertices.clone(), vec![]);
         let s = ScanSurface::new(&bare).unwrap();
-        let lim = MatchLimits { max_distance: 0.2, min_normal_cos: 0.5 };
+        let lim = MatchLimits {
+            max_distance: 0.2,
+            min_normal_cos: 0.5,
+        };
         assert!(s.query(&V3::new(0.0, 0.0, 0.1), &-V3::z(), &lim).is_some());
         assert!(s.query(&V3::new(1.2, 0.0, 0.05), &V3::z(), &lim).is_none());
-        let _ = p;
     }
 }

@@ -16,7 +16,10 @@ use crate::mesh::V3;
 /// vertices filled in the same ring, so the result does not depend on vertex order.
 pub fn grass_fire(neighbours: &[Vec<u32>], matched: &[bool], disp: &mut [V3]) -> Vec<u32> {
     let n = matched.len();
-    let mut ring: Vec<u32> = matched.iter().map(|&m| if m { 0 } else { u32::MAX }).collect();
+    let mut ring: Vec<u32> = matched
+        .iter()
+        .map(|&m| if m { 0 } else { u32::MAX })
+        .collect();
     let mut frontier: Vec<usize> = (0..n)
         .filter(|&i| !matched[i] && neighbours[i].iter().any(|&j| matched[j as usize]))
         .collect();
@@ -32,7 +35,9 @@ pub fn grass_fire(neighbours: &[Vec<u32>], matched: &[bool], disp: &mut [V3]) ->
                 let (s, c) = neighbours[i]
                     .iter()
                     .filter(|&&j| ring[j as usize] < k)
-                    .fold((V3::zeros(), 0usize), |(s, c), &j| (s + disp[j as usize], c + 1));
+                    .fold((V3::zeros(), 0usize), |(s, c), &j| {
+                        (s + disp[j as usize], c + 1)
+                    });
                 (i, s / c.max(1) as f64)
             })
             .collect();
@@ -61,7 +66,13 @@ mod tests {
         // 0 - 1 - 2 - 3 - 4, ends matched
         let nb = vec![vec![1], vec![0, 2], vec![1, 3], vec![2, 4], vec![3]];
         let matched = [true, false, false, false, true];
-        let mut d = vec![V3::new(1., 0., 0.), V3::zeros(), V3::zeros(), V3::zeros(), V3::new(3., 0., 0.)];
+        let mut d = vec![
+            V3::new(1., 0., 0.),
+            V3::zeros(),
+            V3::zeros(),
+            V3::zeros(),
+            V3::new(3., 0., 0.),
+        ];
         let ring = grass_fire(&nb, &matched, &mut d);
         assert_eq!(ring, vec![0, 1, 2, 1, 0]);
         assert_eq!(d[1].x, 1.0);

@@ -56,7 +56,9 @@ impl std::str::FromStr for Method {
         match s {
             "paper" => Ok(Method::Paper),
             "default" => Ok(Method::Default),
-            _ => Err(format!("unknown method '{s}' (expected 'paper' or 'default')")),
+            _ => Err(format!(
+                "unknown method '{s}' (expected 'paper' or 'default')"
+            )),
         }
     }
 }
@@ -217,26 +219,43 @@ impl ConformOptions {
             }
         }
         if !(self.local_scale_limit >= 1.0 && self.local_scale_limit.is_finite()) {
-            return bad(format!("local_scale_limit must be 1 or more, got {}", self.local_scale_limit));
+            return bad(format!(
+                "local_scale_limit must be 1 or more, got {}",
+                self.local_scale_limit
+            ));
         }
         if self.max_iterations == 0 {
             return bad("max_iterations must be at least 1".into());
         }
         if !(0.0..=180.0).contains(&self.max_normal_angle) {
-            return bad(format!("max_normal_angle must be 0-180 degrees, got {}", self.max_normal_angle));
+            return bad(format!(
+                "max_normal_angle must be 0-180 degrees, got {}",
+                self.max_normal_angle
+            ));
         }
         if !(0.0..=1.0).contains(&self.point_to_point) {
-            return bad(format!("point_to_point must be 0-1, got {}", self.point_to_point));
+            return bad(format!(
+                "point_to_point must be 0-1, got {}",
+                self.point_to_point
+            ));
         }
         if !(self.landmark_weight >= 0.0 && self.landmark_weight.is_finite()) {
-            return bad(format!("landmark_weight must be 0 or more, got {}", self.landmark_weight));
+            return bad(format!(
+                "landmark_weight must be 0 or more, got {}",
+                self.landmark_weight
+            ));
         }
         if !(self.rbf_smoothing >= 0.0 && self.rbf_smoothing.is_finite()) {
-            return bad(format!("rbf_smoothing must be 0 or more, got {}", self.rbf_smoothing));
+            return bad(format!(
+                "rbf_smoothing must be 0 or more, got {}",
+                self.rbf_smoothing
+            ));
         }
         for (g, &k) in &self.stiffness {
             if !(k > 0.0 && k.is_finite()) {
-                return bad(format!("stiffness of group '{g}' must be positive, got {k}"));
+                return bad(format!(
+                    "stiffness of group '{g}' must be positive, got {k}"
+                ));
             }
         }
         if !(0.3..=1.0).contains(&self.align.trim) {
@@ -308,7 +327,10 @@ pub struct StageTimes {
 #[derive(Debug, Clone, serde::Serialize)]
 #[serde(tag = "kind", rename_all = "snake_case")]
 pub enum GlobalReport {
-    LandmarkRbf { pairs: Vec<String>, unpaired: Vec<String> },
+    LandmarkRbf {
+        pairs: Vec<String>,
+        unpaired: Vec<String>,
+    },
     Automatic(align::AlignReport),
 }
 
@@ -352,8 +374,18 @@ struct Pairs {
     unpaired: Vec<String>,
 }
 
-fn pair_landmarks(tl: &[Landmark], sl: &[Landmark], template: &Mesh, scan: &Mesh) -> Result<Pairs, ConformError> {
-    let mut p = Pairs { names: vec![], vertex: vec![], target: vec![], unpaired: vec![] };
+fn pair_landmarks(
+    tl: &[Landmark],
+    sl: &[Landmark],
+    template: &Mesh,
+    scan: &Mesh,
+) -> Result<Pairs, ConformError> {
+    let mut p = Pairs {
+        names: vec![],
+        vertex: vec![],
+        target: vec![],
+        unpaired: vec![],
+    };
     for t in tl {
         let Some(s) = sl.iter().find(|s| s.name == t.name) else {
             p.unpaired.push(t.name.clone());
@@ -381,18 +413,31 @@ fn pair_landmarks(tl: &[Landmark], sl: &[Landmark], template: &Mesh, scan: &Mesh
             })?,
         };
         if !target.iter().all(|c| c.is_finite()) {
-            return Err(ConformError::Landmarks(format!("scan landmark '{}' has a non-finite coordinate", s.name)));
+            return Err(ConformError::Landmarks(format!(
+                "scan landmark '{}' has a non-finite coordinate",
+                s.name
+            )));
         }
         p.names.push(t.name.clone());
         p.vertex.push(v);
         p.target.push(target);
     }
-    p.unpaired.extend(sl.iter().filter(|s| !tl.iter().any(|t| t.name == s.name)).map(|s| s.name.clone()));
+    p.unpaired.extend(
+        sl.iter()
+            .filter(|s| !tl.iter().any(|t| t.name == s.name))
+            .map(|s| s.name.clone()),
+    );
     Ok(p)
 }
 
 fn nearest_vertex(v: &[V3], q: &V3) -> u32 {
-    (0..v.len()).min_by(|&a, &b| (v[a] - q).norm_squared().total_cmp(&(v[b] - q).norm_squared())).unwrap_or(0) as u32
+    (0..v.len())
+        .min_by(|&a, &b| {
+            (v[a] - q)
+                .norm_squared()
+                .total_cmp(&(v[b] - q).norm_squared())
+        })
+        .unwrap_or(0) as u32
 }
 
 /// Conforms `template` onto `scan`.
@@ -414,18 +459,34 @@ pub fn conform(
     let t_start = Instant::now();
     opts.validate()?;
     if template.triangles.is_empty() {
-        return Err(ConformError::Template("has no triangles (a template must be a triangle mesh)".into()));
+        return Err(ConformError::Template(
+            "has no triangles (a template must be a triangle mesh)".into(),
+        ));
     }
-    template.validate("template").map_err(ConformError::Template)?;
-    if let Some(g) = opts.stiffness.keys().find(|g| !template.groups.contains_key(*g)) {
+    template
+        .validate("template")
+        .map_err(ConformError::Template)?;
+    if let Some(g) = opts
+        .stiffness
+        .keys()
+        .find(|g| !template.groups.contains_key(*g))
+    {
         return Err(ConformError::Options(format!(
             "stiffness names group '{g}', which the template does not have (it has: {})",
-            template.groups.keys().cloned().collect::<Vec<_>>().join(", ")
+            template
+                .groups
+                .keys()
+                .cloned()
+                .collect::<Vec<_>>()
+                .join(", ")
         )));
     }
     let surface = ScanSurface::new(scan)?;
     let n = template.vertices.len();
-    let mut times = StageTimes { setup: t_start.elapsed().as_secs_f64(), ..Default::default() };
+    let mut times = StageTimes {
+        setup: t_start.elapsed().as_secs_f64(),
+        ..Default::default()
+    };
 
     // 1. Global mapping.
     let t0 = Instant::now();
@@ -435,15 +496,30 @@ pub fn conform(
     };
     let (mut x, global_sim, global_report) = match &pairs {
         Some(p) => {
-            let src: Vec<V3> = p.vertex.iter().map(|&i| template.vertices[i as usize]).collect();
+            let src: Vec<V3> = p
+                .vertex
+                .iter()
+                .map(|&i| template.vertices[i as usize])
+                .collect();
             let map = rbf::fit(&p.names, &src, &p.target, opts.rbf_smoothing)?;
             let mapped: Vec<V3> = template.vertices.par_iter().map(|v| map.apply(v)).collect();
             let sim = fit_similarity(&template.vertices, &mapped, None, true);
-            (mapped, sim, GlobalReport::LandmarkRbf { pairs: p.names.clone(), unpaired: p.unpaired.clone() })
+            (
+                mapped,
+                sim,
+                GlobalReport::LandmarkRbf {
+                    pairs: p.names.clone(),
+                    unpaired: p.unpaired.clone(),
+                },
+            )
         }
         None => {
             let (sim, rep) = align::auto_align(&template.vertices, &surface, &opts.align);
-            (template.vertices.iter().map(|v| sim.apply(v)).collect(), sim, GlobalReport::Automatic(rep))
+            (
+                template.vertices.iter().map(|v| sim.apply(v)).collect(),
+                sim,
+                GlobalReport::Automatic(rep),
+            )
         }
     };
     times.global = t0.elapsed().as_secs_f64();
@@ -451,7 +527,11 @@ pub fn conform(
     // The springs' rest shape: the template under the global similarity, so that a
     // scan in other units or another place does not load the springs.
     let rest: Vec<V3> = match opts.rest {
-        RestShape::Template => template.vertices.iter().map(|v| global_sim.apply(v)).collect(),
+        RestShape::Template => template
+            .vertices
+            .iter()
+            .map(|v| global_sim.apply(v))
+            .collect(),
         RestShape::Mapped => x.clone(),
     };
     let rest_mesh = Mesh::new(rest.clone(), template.triangles.clone());
@@ -468,7 +548,10 @@ pub fn conform(
     let lap = solve::laplacian(&rest, &template.triangles, default_method, &stiff);
     // Springs are scaled so that epsilon means the same for either weighting.
     let mean_diag = lap.diag.iter().sum::<f64>() / n as f64;
-    let lap = solve::Laplacian { weights: lap.weights.map(|w| w / mean_diag), diag: lap.diag.iter().map(|d| d / mean_diag).collect() };
+    let lap = solve::Laplacian {
+        weights: lap.weights.map(|w| w / mean_diag),
+        diag: lap.diag.iter().map(|d| d / mean_diag).collect(),
+    };
     let limits = MatchLimits {
         max_distance: opts.max_distance * diag,
         min_normal_cos: opts.max_normal_angle.to_radians().cos(),
@@ -507,7 +590,17 @@ pub fn conform(
             point_to_point: opts.point_to_point,
             scan_to_template: opts.scan_to_template,
         };
-        let (xc, rc) = coarse::run(&graph, &rest, &x, &template.triangles, &surface, diag, &landmark_weight, &landmark_target, &settings);
+        let (xc, rc) = coarse::run(
+            &graph,
+            &rest,
+            &x,
+            &template.triangles,
+            &surface,
+            diag,
+            &landmark_weight,
+            &landmark_target,
+            &settings,
+        );
         x = xc;
         rot = rc;
         times.coarse = t.elapsed().as_secs_f64();
@@ -526,7 +619,11 @@ pub fn conform(
         // 2. Correspondence.
         let t = Instant::now();
         let normals = vertex_normals(&x, &template.triangles);
-        let matches: Vec<_> = x.par_iter().zip(&normals).map(|(p, nv)| surface.query(p, nv, &limits)).collect();
+        let matches: Vec<_> = x
+            .par_iter()
+            .zip(&normals)
+            .map(|(p, nv)| surface.query(p, nv, &limits))
+            .collect();
         times.correspond += t.elapsed().as_secs_f64();
         let summary = MatchSummary::of(&matches);
         if let Some(prev) = reports.last_mut() {
@@ -537,7 +634,11 @@ pub fn conform(
         // 3. Grass fire.
         let t = Instant::now();
         let matched: Vec<bool> = matches.iter().map(Option::is_some).collect();
-        let mut disp: Vec<V3> = matches.iter().zip(&x).map(|(m, p)| m.map_or(V3::zeros(), |m| m.point - p)).collect();
+        let mut disp: Vec<V3> = matches
+            .iter()
+            .zip(&x)
+            .map(|(m, p)| m.map_or(V3::zeros(), |m| m.point - p))
+            .collect();
         let ring = fill::grass_fire(&neighbours, &matched, &mut disp);
         let filled = ring.iter().filter(|&&r| r != 0 && r != u32::MAX).count();
         let unreachable = ring.iter().filter(|&&r| r == u32::MAX).count();
@@ -546,7 +647,10 @@ pub fn conform(
         // 4. Elastic solve.
         let x_prev = x.clone();
         let mean_w = {
-            let (s, c) = matches.iter().flatten().fold((0.0, 0usize), |(s, c), m| (s + m.weight, c + 1));
+            let (s, c) = matches
+                .iter()
+                .flatten()
+                .fold((0.0, 0usize), |(s, c), m| (s + m.weight, c + 1));
             if c > 0 { s / c as f64 } else { 1.0 }
         };
         // A whisper of anchoring to the previous positions keeps the system positive
@@ -559,10 +663,16 @@ pub fn conform(
                 .collect();
             // Start from the grass-fire displacement: unmatched vertices carry no data
             // weight, so the rotation-aware springs alone shape the holes.
-            let mut xc: Vec<V3> = (0..n).map(|i| if matched[i] { x[i] } else { x[i] + disp[i] }).collect();
+            let mut xc: Vec<V3> = (0..n)
+                .map(|i| if matched[i] { x[i] } else { x[i] + disp[i] })
+                .collect();
             for _ in 0..opts.rotation_iterations.max(1) {
                 let t = Instant::now();
-                let scale = (opts.local_scale_limit > 1.0).then_some((&mut local_scale[..], &rest_norms[..], opts.local_scale_limit));
+                let scale = (opts.local_scale_limit > 1.0).then_some((
+                    &mut local_scale[..],
+                    &rest_norms[..],
+                    opts.local_scale_limit,
+                ));
                 solve::fit_rotations(&lap, &rest, &xc, opts.rotation_rings, &mut rot, scale);
                 let rm: Vec<Matrix3<f64>> = rot
                     .iter()
@@ -582,17 +692,29 @@ pub fn conform(
                 let b: Vec<V3> = (0..n)
                     .into_par_iter()
                     .map(|i| {
-                        let mut b = springs[i] * eps + x_prev[i] * anchor + landmark_target[i] * landmark_weight[i];
+                        let mut b = springs[i] * eps
+                            + x_prev[i] * anchor
+                            + landmark_target[i] * landmark_weight[i];
                         if let Some(m) = &matches[i] {
                             // point-to-plane: the foot of the current position on the
                             // scan's tangent plane, blended with the point itself
                             let foot = xc[i] - m.normal * m.normal.dot(&(xc[i] - m.point));
-                            b += (foot * (1.0 - opts.point_to_point) + m.point * opts.point_to_point) * m.weight;
+                            b += (foot * (1.0 - opts.point_to_point)
+                                + m.point * opts.point_to_point)
+                                * m.weight;
                         }
                         b
                     })
                     .collect();
-                let st = solve::pcg(&lap, eps, &d, &b, &mut xc, opts.solver_tolerance, opts.solver_max_iterations);
+                let st = solve::pcg(
+                    &lap,
+                    eps,
+                    &d,
+                    &b,
+                    &mut xc,
+                    opts.solver_tolerance,
+                    opts.solver_max_iterations,
+                );
                 solver_iterations += st.iterations;
                 times.solve += t.elapsed().as_secs_f64();
             }
@@ -609,13 +731,27 @@ pub fn conform(
                 })
                 .collect();
             let springs = lap.rotated_rest(&rest, None);
-            let b: Vec<V3> = (0..n).map(|i| springs[i] * eps + (x[i] + disp[i]) * (d[i] - anchor) + x[i] * anchor).collect();
-            let st = solve::pcg(&lap, eps, &d, &b, &mut x, opts.solver_tolerance, opts.solver_max_iterations);
+            let b: Vec<V3> = (0..n)
+                .map(|i| springs[i] * eps + (x[i] + disp[i]) * (d[i] - anchor) + x[i] * anchor)
+                .collect();
+            let st = solve::pcg(
+                &lap,
+                eps,
+                &d,
+                &b,
+                &mut x,
+                opts.solver_tolerance,
+                opts.solver_max_iterations,
+            );
             solver_iterations = st.iterations;
             times.solve += t.elapsed().as_secs_f64();
         }
 
-        let max_update = x.iter().zip(&x_prev).map(|(a, b)| (a - b).norm()).fold(0.0, f64::max);
+        let max_update = x
+            .iter()
+            .zip(&x_prev)
+            .map(|(a, b)| (a - b).norm())
+            .fold(0.0, f64::max);
         let rep = IterationReport {
             iteration: it + 1,
             epsilon: eps,
@@ -641,7 +777,11 @@ pub fn conform(
     // The distance of the final result to the scan.
     let t = Instant::now();
     let normals = vertex_normals(&x, &template.triangles);
-    let final_matches: Vec<_> = x.par_iter().zip(&normals).map(|(p, nv)| surface.query(p, nv, &limits)).collect();
+    let final_matches: Vec<_> = x
+        .par_iter()
+        .zip(&normals)
+        .map(|(p, nv)| surface.query(p, nv, &limits))
+        .collect();
     let fin = MatchSummary::of(&final_matches);
     times.correspond += t.elapsed().as_secs_f64();
     if let Some(r) = reports.last_mut() {
@@ -652,7 +792,12 @@ pub fn conform(
     mesh.groups = template.groups.clone();
     mesh.normals = Some(normals);
     let landmark_rms = pairs.as_ref().filter(|p| !p.names.is_empty()).map(|p| {
-        let s: f64 = p.vertex.iter().zip(&p.target).map(|(&v, t)| (mesh.vertices[v as usize] - t).norm_squared()).sum();
+        let s: f64 = p
+            .vertex
+            .iter()
+            .zip(&p.target)
+            .map(|(&v, t)| (mesh.vertices[v as usize] - t).norm_squared())
+            .sum();
         (s / p.names.len() as f64).sqrt()
     });
     times.total = t_start.elapsed().as_secs_f64();
@@ -687,7 +832,13 @@ struct MatchSummary {
 
 impl MatchSummary {
     fn of(m: &[Option<correspond::Match>]) -> Self {
-        let (s, c) = m.iter().flatten().fold((0.0, 0usize), |(s, c), m| (s + m.distance, c + 1));
-        MatchSummary { matched: c, mean_distance: if c > 0 { s / c as f64 } else { f64::NAN } }
+        let (s, c) = m
+            .iter()
+            .flatten()
+            .fold((0.0, 0usize), |(s, c), m| (s + m.distance, c + 1));
+        MatchSummary {
+            matched: c,
+            mean_distance: if c > 0 { s / c as f64 } else { f64::NAN },
+        }
     }
 }

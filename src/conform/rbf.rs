@@ -7,13 +7,17 @@ use nalgebra::{DMatrix, DVector, Matrix3};
 
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum RbfError {
-    #[error("{0} landmark pairs; the global mapping needs at least 4 that are not all in one plane")]
+    #[error(
+        "{0} landmark pairs; the global mapping needs at least 4 that are not all in one plane"
+    )]
     TooFew(usize),
     #[error("landmark '{0}' has a non-finite coordinate")]
     NotFinite(String),
     #[error("landmarks '{0}' and '{1}' are at the same place on the {2}")]
     Duplicate(String, String, &'static str),
-    #[error("the {0} landmarks all lie in one plane (or on a line), so the mapping is undetermined; add a landmark off that plane")]
+    #[error(
+        "the {0} landmarks all lie in one plane (or on a line), so the mapping is undetermined; add a landmark off that plane"
+    )]
     Coplanar(&'static str),
     #[error("the landmark system could not be solved (the landmarks are degenerate)")]
     Singular,
@@ -81,16 +85,27 @@ pub fn fit(names: &[String], src: &[V3], dst: &[V3], smoothing: f64) -> Result<R
         for i in 0..n {
             rhs[i] = dst[i][k];
         }
-        let x = svd.solve(&rhs, smax * 1e-10).map_err(|_| RbfError::Singular)?;
+        let x = svd
+            .solve(&rhs, smax * 1e-10)
+            .map_err(|_| RbfError::Singular)?;
         sol.set_column(k, &x);
     }
     if !sol.iter().all(|v| v.is_finite()) {
         return Err(RbfError::Singular);
     }
-    let lambdas = (0..n).map(|i| V3::new(sol[(i, 0)], sol[(i, 1)], sol[(i, 2)])).collect();
+    let lambdas = (0..n)
+        .map(|i| V3::new(sol[(i, 0)], sol[(i, 1)], sol[(i, 2)]))
+        .collect();
     let offset = V3::new(sol[(n, 0)], sol[(n, 1)], sol[(n, 2)]);
     let linear = Matrix3::from_fn(|r, col| sol[(n + 1 + col, r)]);
-    Ok(RbfMap { centres: c, lambdas, linear, offset, origin, scale })
+    Ok(RbfMap {
+        centres: c,
+        lambdas,
+        linear,
+        offset,
+        origin,
+        scale,
+    })
 }
 
 fn check_spread(names: &[String], p: &[V3], what: &'static str) -> Result<(), RbfError> {
@@ -98,16 +113,26 @@ fn check_spread(names: &[String], p: &[V3], what: &'static str) -> Result<(), Rb
     let centroid = p.iter().sum::<V3>() / n as f64;
     let extent = p.iter().map(|q| (q - centroid).norm()).fold(0.0, f64::max);
     if extent == 0.0 {
-        return Err(RbfError::Duplicate(names[0].clone(), names[1].clone(), what));
+        return Err(RbfError::Duplicate(
+            names[0].clone(),
+            names[1].clone(),
+            what,
+        ));
     }
     for i in 0..n {
         for j in i + 1..n {
             if (p[i] - p[j]).norm() <= 1e-9 * extent {
-                return Err(RbfError::Duplicate(names[i].clone(), names[j].clone(), what));
+                return Err(RbfError::Duplicate(
+                    names[i].clone(),
+                    names[j].clone(),
+                    what,
+                ));
             }
         }
     }
-    let cov = p.iter().fold(Matrix3::zeros(), |m, q| m + (q - centroid) * (q - centroid).transpose());
+    let cov = p.iter().fold(Matrix3::zeros(), |m, q| {
+        m + (q - centroid) * (q - centroid).transpose()
+    });
     let ev = cov.symmetric_eigenvalues();
     let (lo, hi) = (ev.min().max(0.0).sqrt(), ev.max().sqrt());
     if lo <= PLANAR * hi {
@@ -139,10 +164,15 @@ mod tests {
     #[test]
     fn interpolates_landmarks_and_reproduces_affine_maps() {
         let src = vec![
-            V3::new(0., 0., 0.), V3::new(1., 0., 0.), V3::new(0., 1., 0.), V3::new(0., 0., 1.),
-            V3::new(1., 1., 1.), V3::new(0.3, 0.7, 0.2),
+            V3::new(0., 0., 0.),
+            V3::new(1., 0., 0.),
+            V3::new(0., 1., 0.),
+            V3::new(0., 0., 1.),
+            V3::new(1., 1., 1.),
+            V3::new(0.3, 0.7, 0.2),
         ];
-        let aff = |p: &V3| Matrix3::new(2., 0.1, 0., 0., 1.5, 0., 0.2, 0., 0.8) * p + V3::new(1., 2., 3.);
+        let aff =
+            |p: &V3| Matrix3::new(2., 0.1, 0., 0., 1.5, 0., 0.2, 0., 0.8) * p + V3::new(1., 2., 3.);
         let dst: Vec<V3> = src.iter().map(aff).collect();
         let m = fit(&names(6), &src, &dst, 0.0).unwrap();
         let probe = V3::new(0.5, 0.2, 0.9);

@@ -14,9 +14,16 @@ use std::path::{Path, PathBuf};
 #[derive(Debug, thiserror::Error)]
 pub enum MeshError {
     #[error("{path}: {source}")]
-    Io { path: String, source: std::io::Error },
+    Io {
+        path: String,
+        source: std::io::Error,
+    },
     #[error("{path}: line {line}: {msg}")]
-    Line { path: String, line: usize, msg: String },
+    Line {
+        path: String,
+        line: usize,
+        msg: String,
+    },
     #[error("{path}: {msg}")]
     Content { path: String, msg: String },
     #[error("{path}: unsupported mesh format (expected .obj, .ply or .off)")]
@@ -24,10 +31,17 @@ pub enum MeshError {
 }
 
 fn line_err(path: &str, line: usize, msg: impl Into<String>) -> MeshError {
-    MeshError::Line { path: path.to_string(), line, msg: msg.into() }
+    MeshError::Line {
+        path: path.to_string(),
+        line,
+        msg: msg.into(),
+    }
 }
 fn content_err(path: &str, msg: impl Into<String>) -> MeshError {
-    MeshError::Content { path: path.to_string(), msg: msg.into() }
+    MeshError::Content {
+        path: path.to_string(),
+        msg: msg.into(),
+    }
 }
 
 /// Reads a mesh or point cloud, choosing the reader by the file's extension.
@@ -36,8 +50,10 @@ fn content_err(path: &str, msg: impl Into<String>) -> MeshError {
 pub fn read_mesh(path: &Path) -> Result<Mesh, MeshError> {
     let name = path.display().to_string();
     let ext = extension(path);
-    let bytes =
-        std::fs::read(path).map_err(|source| MeshError::Io { path: name.clone(), source })?;
+    let bytes = std::fs::read(path).map_err(|source| MeshError::Io {
+        path: name.clone(),
+        source,
+    })?;
     match ext.as_str() {
         "ply" => read_ply_bytes(&name, &bytes),
         "obj" => read_obj_bytes(&name, &bytes),
@@ -51,26 +67,42 @@ pub fn write_mesh(path: &Path, mesh: &Mesh) -> Result<(), MeshError> {
     let bytes = match extension(path).as_str() {
         "ply" => ply_bytes(mesh, PlyEncoding::BinaryLittleEndian),
         "obj" => obj_bytes(mesh).into_bytes(),
-        _ => return Err(MeshError::Format { path: path.display().to_string() }),
+        _ => {
+            return Err(MeshError::Format {
+                path: path.display().to_string(),
+            });
+        }
     };
     write_atomic(path, &bytes)
 }
 
 fn extension(path: &Path) -> String {
-    path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase()
+    path.extension()
+        .and_then(|e| e.to_str())
+        .unwrap_or("")
+        .to_ascii_lowercase()
 }
 
 /// Writes `bytes` to a temporary name in the same directory, syncs it, then renames it
 /// over `path`, so a reader (or a crash) never sees a half-written file.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), MeshError> {
     let name = path.display().to_string();
-    let io = |source| MeshError::Io { path: name.clone(), source };
+    let io = |source| MeshError::Io {
+        path: name.clone(),
+        source,
+    };
     let dir = match path.parent() {
         Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
         _ => PathBuf::from("."),
     };
-    let file_name = path.file_name().ok_or_else(|| content_err(&name, "not a file name"))?;
-    let tmp = dir.join(format!(".{}.tmp-{}", file_name.to_string_lossy(), std::process::id()));
+    let file_name = path
+        .file_name()
+        .ok_or_else(|| content_err(&name, "not a file name"))?;
+    let tmp = dir.join(format!(
+        ".{}.tmp-{}",
+        file_name.to_string_lossy(),
+        std::process::id()
+    ));
     let result = (|| {
         let mut f = std::fs::File::create(&tmp)?;
         f.write_all(bytes)?;
@@ -146,8 +178,15 @@ impl Scalar {
 
 #[derive(Debug, Clone)]
 enum Property {
-    Scalar { name: String, ty: Scalar },
-    List { name: String, count: Scalar, item: Scalar },
+    Scalar {
+        name: String,
+        ty: Scalar,
+    },
+    List {
+        name: String,
+        count: Scalar,
+        item: Scalar,
+    },
 }
 
 #[derive(Debug, Clone)]
@@ -171,14 +210,23 @@ pub fn read_ply_bytes(path: &str, bytes: &[u8]) -> Result<Mesh, MeshError> {
         if *pos >= bytes.len() {
             return None;
         }
-        let end = bytes[*pos..].iter().position(|&b| b == b'\n').map_or(bytes.len(), |e| *pos + e);
-        let line = String::from_utf8_lossy(&bytes[*pos..end]).trim_end_matches('\r').to_string();
+        let end = bytes[*pos..]
+            .iter()
+            .position(|&b| b == b'\n')
+            .map_or(bytes.len(), |e| *pos + e);
+        let line = String::from_utf8_lossy(&bytes[*pos..end])
+            .trim_end_matches('\r')
+            .to_string();
         *pos = (end + 1).min(bytes.len());
         line_no += 1;
         Some(line)
     };
     if next_line(&mut pos).as_deref().map(str::trim) != Some("ply") {
-        return Err(line_err(path, 1, "not a PLY file (the first line must be 'ply')"));
+        return Err(line_err(
+            path,
+            1,
+            "not a PLY file (the first line must be 'ply')",
+        ));
     }
     let mut encoding = None;
     let mut elements: Vec<Element> = Vec::new();
@@ -199,26 +247,52 @@ pub fn read_ply_bytes(path: &str, bytes: &[u8]) -> Result<Mesh, MeshError> {
                         return Err(line_err(
                             path,
                             header_lines,
-                            format!("format '{other}' is not supported (ascii or binary_little_endian)"),
+                            format!(
+                                "format '{other}' is not supported (ascii or binary_little_endian)"
+                            ),
                         ));
                     }
-                    None => return Err(line_err(path, header_lines, "format line without a format")),
+                    None => {
+                        return Err(line_err(path, header_lines, "format line without a format"));
+                    }
                 })
             }
             Some("element") => {
                 let (Some(name), Some(count)) = (tok.get(1), tok.get(2)) else {
-                    return Err(line_err(path, header_lines, "element line needs a name and a count"));
+                    return Err(line_err(
+                        path,
+                        header_lines,
+                        "element line needs a name and a count",
+                    ));
                 };
-                let count: usize = count.parse().ok().filter(|&c| c <= MAX_ELEMENTS).ok_or_else(|| {
-                    line_err(path, header_lines, format!("element '{name}' has a bad count '{count}'"))
-                })?;
-                elements.push(Element { name: name.to_string(), count, props: vec![] });
+                let count: usize = count
+                    .parse()
+                    .ok()
+                    .filter(|&c| c <= MAX_ELEMENTS)
+                    .ok_or_else(|| {
+                        line_err(
+                            path,
+                            header_lines,
+                            format!("element '{name}' has a bad count '{count}'"),
+                        )
+                    })?;
+                elements.push(Element {
+                    name: name.to_string(),
+                    count,
+                    props: vec![],
+                });
             }
             Some("property") => {
-                let el = elements.last_mut().ok_or_else(|| {
-                    line_err(path, header_lines, "property before any element")
-                })?;
-                let bad = || line_err(path, header_lines, format!("malformed property line '{line}'"));
+                let el = elements
+                    .last_mut()
+                    .ok_or_else(|| line_err(path, header_lines, "property before any element"))?;
+                let bad = || {
+                    line_err(
+                        path,
+                        header_lines,
+                        format!("malformed property line '{line}'"),
+                    )
+                };
                 let prop = if tok.get(1) == Some(&"list") {
                     let count = tok.get(2).and_then(|s| Scalar::parse(s)).ok_or_else(bad)?;
                     let item = tok.get(3).and_then(|s| Scalar::parse(s)).ok_or_else(bad)?;
@@ -226,13 +300,20 @@ pub fn read_ply_bytes(path: &str, bytes: &[u8]) -> Result<Mesh, MeshError> {
                     Property::List { name, count, item }
                 } else {
                     let ty = tok.get(1).and_then(|s| Scalar::parse(s)).ok_or_else(bad)?;
-                    Property::Scalar { name: tok.get(2).ok_or_else(bad)?.to_string(), ty }
+                    Property::Scalar {
+                        name: tok.get(2).ok_or_else(bad)?.to_string(),
+                        ty,
+                    }
                 };
                 el.props.push(prop);
             }
             Some("end_header") => break,
             Some(other) => {
-                return Err(line_err(path, header_lines, format!("unknown header keyword '{other}'")));
+                return Err(line_err(
+                    path,
+                    header_lines,
+                    format!("unknown header keyword '{other}'"),
+                ));
             }
         }
     }
@@ -251,7 +332,9 @@ pub fn read_ply_bytes(path: &str, bytes: &[u8]) -> Result<Mesh, MeshError> {
         let is_vertex = el.name == "vertex";
         let is_face = el.name == "face";
         let col = |n: &str| {
-            el.props.iter().position(|p| matches!(p, Property::Scalar { name, .. } if name == n))
+            el.props
+                .iter()
+                .position(|p| matches!(p, Property::Scalar { name, .. } if name == n))
         };
         let (cx, cy, cz) = (col("x"), col("y"), col("z"));
         let (cnx, cny, cnz) = (col("nx"), col("ny"), col("nz"));
@@ -260,36 +343,52 @@ pub fn read_ply_bytes(path: &str, bytes: &[u8]) -> Result<Mesh, MeshError> {
         });
         if is_vertex {
             if cx.is_none() || cy.is_none() || cz.is_none() {
-                return Err(content_err(path, "element 'vertex' lacks an x, y or z property"));
+                return Err(content_err(
+                    path,
+                    "element 'vertex' lacks an x, y or z property",
+                ));
             }
             seen_vertex = true;
             has_normals = cnx.is_some() && cny.is_some() && cnz.is_some();
             mesh.vertices.reserve(el.count.min(1 << 24));
         }
         if is_face && face_list.is_none() {
-            return Err(content_err(path, "element 'face' lacks a vertex_indices list"));
+            return Err(content_err(
+                path,
+                "element 'face' lacks a vertex_indices list",
+            ));
         }
         let mut scalars = vec![0.0f64; el.props.len()];
         let mut list: Vec<f64> = Vec::new();
         for row in 0..el.count {
             let what = || format!("element '{}' row {}", el.name, row);
-            rows.start_row().map_err(|m| content_err(path, format!("{}: {m}", what())))?;
+            rows.start_row()
+                .map_err(|m| content_err(path, format!("{}: {m}", what())))?;
             for (k, p) in el.props.iter().enumerate() {
                 match p {
                     Property::Scalar { ty, .. } => {
-                        scalars[k] = rows.value(*ty).map_err(|m| content_err(path, format!("{}: {m}", what())))?;
+                        scalars[k] = rows
+                            .value(*ty)
+                            .map_err(|m| content_err(path, format!("{}: {m}", what())))?;
                     }
                     Property::List { count, item, .. } => {
-                        let n = rows.value(*count).map_err(|m| content_err(path, format!("{}: {m}", what())))?;
+                        let n = rows
+                            .value(*count)
+                            .map_err(|m| content_err(path, format!("{}: {m}", what())))?;
                         if !(0.0..=1_000_000.0).contains(&n) || n.fract() != 0.0 {
-                            return Err(content_err(path, format!("{}: bad list length {n}", what())));
+                            return Err(content_err(
+                                path,
+                                format!("{}: bad list length {n}", what()),
+                            ));
                         }
                         let keep = Some(k) == face_list;
                         if keep {
                             list.clear();
                         }
                         for _ in 0..n as usize {
-                            let v = rows.value(*item).map_err(|m| content_err(path, format!("{}: {m}", what())))?;
+                            let v = rows
+                                .value(*item)
+                                .map_err(|m| content_err(path, format!("{}: {m}", what())))?;
                             if keep {
                                 list.push(v);
                             }
@@ -297,19 +396,34 @@ pub fn read_ply_bytes(path: &str, bytes: &[u8]) -> Result<Mesh, MeshError> {
                     }
                 }
             }
-            rows.end_row().map_err(|m| content_err(path, format!("{}: {m}", what())))?;
+            rows.end_row()
+                .map_err(|m| content_err(path, format!("{}: {m}", what())))?;
             if is_vertex {
-                let v = V3::new(scalars[cx.unwrap()], scalars[cy.unwrap()], scalars[cz.unwrap()]);
+                let v = V3::new(
+                    scalars[cx.unwrap()],
+                    scalars[cy.unwrap()],
+                    scalars[cz.unwrap()],
+                );
                 if !v.iter().all(|c| c.is_finite()) {
-                    return Err(content_err(path, format!("vertex {row}: non-finite coordinate")));
+                    return Err(content_err(
+                        path,
+                        format!("vertex {row}: non-finite coordinate"),
+                    ));
                 }
                 mesh.vertices.push(v);
                 if has_normals {
-                    normals.push(V3::new(scalars[cnx.unwrap()], scalars[cny.unwrap()], scalars[cnz.unwrap()]));
+                    normals.push(V3::new(
+                        scalars[cnx.unwrap()],
+                        scalars[cny.unwrap()],
+                        scalars[cnz.unwrap()],
+                    ));
                 }
             } else if is_face {
                 if list.len() < 3 {
-                    return Err(content_err(path, format!("face {row}: fewer than 3 vertices")));
+                    return Err(content_err(
+                        path,
+                        format!("face {row}: fewer than 3 vertices"),
+                    ));
                 }
                 push_polygon(&mut mesh.triangles, &list, mesh.vertices.len(), seen_vertex)
                     .map_err(|m| content_err(path, format!("face {row}: {m}")))?;
@@ -335,14 +449,21 @@ pub fn read_ply_bytes(path: &str, bytes: &[u8]) -> Result<Mesh, MeshError> {
 }
 
 /// Fan-triangulates one polygon of vertex indices, checking each index against `nv`.
-fn push_polygon(out: &mut Vec<[u32; 3]>, idx: &[f64], nv: usize, have_vertices: bool) -> Result<(), String> {
+fn push_polygon(
+    out: &mut Vec<[u32; 3]>,
+    idx: &[f64],
+    nv: usize,
+    have_vertices: bool,
+) -> Result<(), String> {
     if !have_vertices {
         return Err("faces come before the vertices".into());
     }
     let mut ids = Vec::with_capacity(idx.len());
     for &i in idx {
         if i < 0.0 || i.fract() != 0.0 || i >= nv as f64 {
-            return Err(format!("vertex index {i} out of range (the mesh has {nv} vertices)"));
+            return Err(format!(
+                "vertex index {i} out of range (the mesh has {nv} vertices)"
+            ));
         }
         ids.push(i as u32);
     }
@@ -400,7 +521,14 @@ impl<'a> AsciiRows<'a> {
             Ok(t) => (t, false),
             Err(_) => ("", true),
         };
-        AsciiRows { lines: text.lines().enumerate().peekable(), header_lines, tokens: vec![], next: 0, line: 0, invalid_utf8 }
+        AsciiRows {
+            lines: text.lines().enumerate().peekable(),
+            header_lines,
+            tokens: vec![],
+            next: 0,
+            line: 0,
+            invalid_utf8,
+        }
     }
 }
 
@@ -431,7 +559,9 @@ impl RowSource for AsciiRows<'_> {
             });
         };
         self.next += 1;
-        let v: f64 = t.parse().map_err(|_| format!("line {}: '{t}' is not a number", self.line))?;
+        let v: f64 = t
+            .parse()
+            .map_err(|_| format!("line {}: '{t}' is not a number", self.line))?;
         if !matches!(ty, Scalar::F32 | Scalar::F64) && v.fract() != 0.0 {
             return Err(format!("line {}: '{t}' is not an integer", self.line));
         }
@@ -439,7 +569,12 @@ impl RowSource for AsciiRows<'_> {
     }
     fn end_row(&mut self) -> Result<(), String> {
         if self.next != self.tokens.len() {
-            return Err(format!("line {}: {} values, expected {}", self.line, self.tokens.len(), self.next));
+            return Err(format!(
+                "line {}: {} values, expected {}",
+                self.line,
+                self.tokens.len(),
+                self.next
+            ));
         }
         Ok(())
     }
@@ -450,7 +585,10 @@ impl RowSource for AsciiRows<'_> {
 
 /// Serialises a mesh (or point cloud, with normals if present) as PLY.
 pub fn ply_bytes(mesh: &Mesh, enc: PlyEncoding) -> Vec<u8> {
-    let normals = mesh.normals.as_ref().filter(|n| n.len() == mesh.vertices.len());
+    let normals = mesh
+        .normals
+        .as_ref()
+        .filter(|n| n.len() == mesh.vertices.len());
     let mut h = String::new();
     h.push_str("ply\n");
     h.push_str(match enc {
@@ -515,16 +653,31 @@ pub fn ply_bytes(mesh: &Mesh, enc: PlyEncoding) -> Vec<u8> {
 pub fn read_obj_bytes(path: &str, bytes: &[u8]) -> Result<Mesh, MeshError> {
     // The file's own vertex list, in order, for mapping tobj's renumbering back.
     let text = std::str::from_utf8(bytes).map_err(|e| {
-        content_err(path, format!("not a text file (invalid UTF-8 at byte {})", e.valid_up_to()))
+        content_err(
+            path,
+            format!(
+                "not a text file (invalid UTF-8 at byte {})",
+                e.valid_up_to()
+            ),
+        )
     })?;
     let mut file_vertices: Vec<V3> = Vec::new();
     for (i, line) in text.lines().enumerate() {
         let mut tok = line.split_whitespace();
         if tok.next() == Some("v") {
-            let c: Vec<f64> = tok.take(3).map(|t| t.parse::<f64>()).collect::<Result<_, _>>()
-                .map_err(|_| line_err(path, i + 1, "a 'v' line with a value that is not a number"))?;
+            let c: Vec<f64> = tok
+                .take(3)
+                .map(|t| t.parse::<f64>())
+                .collect::<Result<_, _>>()
+                .map_err(|_| {
+                    line_err(path, i + 1, "a 'v' line with a value that is not a number")
+                })?;
             if c.len() < 3 {
-                return Err(line_err(path, i + 1, "a 'v' line with fewer than 3 coordinates"));
+                return Err(line_err(
+                    path,
+                    i + 1,
+                    "a 'v' line with fewer than 3 coordinates",
+                ));
             }
             if !c.iter().all(|x| x.is_finite()) {
                 return Err(line_err(path, i + 1, "non-finite vertex coordinate"));
@@ -532,7 +685,11 @@ pub fn read_obj_bytes(path: &str, bytes: &[u8]) -> Result<Mesh, MeshError> {
             file_vertices.push(V3::new(c[0], c[1], c[2]));
         }
     }
-    let opts = tobj::LoadOptions { triangulate: true, single_index: false, ..Default::default() };
+    let opts = tobj::LoadOptions {
+        triangulate: true,
+        single_index: false,
+        ..Default::default()
+    };
     let (models, _) = tobj::load_obj_buf(&mut std::io::Cursor::new(bytes), &opts, |_| {
         Err(tobj::LoadError::GenericFailure)
     })
@@ -548,7 +705,10 @@ pub fn read_obj_bytes(path: &str, bytes: &[u8]) -> Result<Mesh, MeshError> {
     for m in &models {
         let p = &m.mesh.positions;
         if p.len() % 3 != 0 || m.mesh.indices.len() % 3 != 0 {
-            return Err(content_err(path, format!("group '{}': malformed geometry", m.name)));
+            return Err(content_err(
+                path,
+                format!("group '{}': malformed geometry", m.name),
+            ));
         }
         // tobj vertex k of this model -> file vertex index
         let mut used: HashMap<[u64; 3], usize> = HashMap::new();
@@ -557,7 +717,13 @@ pub fn read_obj_bytes(path: &str, bytes: &[u8]) -> Result<Mesh, MeshError> {
             let v = V3::new(p[3 * k], p[3 * k + 1], p[3 * k + 2]);
             let kk = key(&v);
             let cands = by_pos.get(&kk).ok_or_else(|| {
-                content_err(path, format!("group '{}': a face refers to a vertex that is not in the file", m.name))
+                content_err(
+                    path,
+                    format!(
+                        "group '{}': a face refers to a vertex that is not in the file",
+                        m.name
+                    ),
+                )
             })?;
             let n = used.entry(kk).or_insert(0);
             map.push(cands[(*n).min(cands.len() - 1)]);
@@ -566,7 +732,10 @@ pub fn read_obj_bytes(path: &str, bytes: &[u8]) -> Result<Mesh, MeshError> {
         for t in m.mesh.indices.chunks_exact(3) {
             let tri = [t[0], t[1], t[2]].map(|i| map.get(i as usize).copied());
             let [Some(a), Some(b), Some(c)] = tri else {
-                return Err(content_err(path, format!("group '{}': face index out of range", m.name)));
+                return Err(content_err(
+                    path,
+                    format!("group '{}': face index out of range", m.name),
+                ));
             };
             mesh.triangles.push([a, b, c]);
             if !m.name.is_empty() && m.name != "unnamed_object" {
@@ -574,7 +743,10 @@ pub fn read_obj_bytes(path: &str, bytes: &[u8]) -> Result<Mesh, MeshError> {
             }
         }
     }
-    mesh.groups = groups.into_iter().map(|(k, v)| (k, v.into_iter().collect())).collect();
+    mesh.groups = groups
+        .into_iter()
+        .map(|(k, v)| (k, v.into_iter().collect()))
+        .collect();
     Ok(mesh)
 }
 
@@ -585,7 +757,10 @@ pub fn obj_bytes(mesh: &Mesh) -> String {
     for v in &mesh.vertices {
         let _ = writeln!(s, "v {} {} {}", v.x, v.y, v.z);
     }
-    let normals = mesh.normals.as_ref().filter(|n| n.len() == mesh.vertices.len());
+    let normals = mesh
+        .normals
+        .as_ref()
+        .filter(|n| n.len() == mesh.vertices.len());
     if let Some(ns) = normals {
         for n in ns {
             let _ = writeln!(s, "vn {} {} {}", n.x, n.y, n.z);
@@ -609,7 +784,11 @@ pub fn read_off_bytes(path: &str, bytes: &[u8]) -> Result<Mesh, MeshError> {
     let text = std::str::from_utf8(bytes).map_err(|_| content_err(path, "not a text file"))?;
     // Tokens with their line numbers, comments stripped.
     let mut toks = text.lines().enumerate().flat_map(|(i, l)| {
-        l.split('#').next().unwrap_or("").split_whitespace().map(move |t| (i + 1, t))
+        l.split('#')
+            .next()
+            .unwrap_or("")
+            .split_whitespace()
+            .map(move |t| (i + 1, t))
     });
     let (l, head) = toks.next().ok_or_else(|| content_err(path, "empty file"))?;
     if head != "OFF" {
@@ -617,9 +796,12 @@ pub fn read_off_bytes(path: &str, bytes: &[u8]) -> Result<Mesh, MeshError> {
     }
     let last_line = std::cell::Cell::new(l);
     let mut num = |what: &str| -> Result<f64, MeshError> {
-        let (l, t) = toks.next().ok_or_else(|| content_err(path, format!("file ends while reading {what}")))?;
+        let (l, t) = toks
+            .next()
+            .ok_or_else(|| content_err(path, format!("file ends while reading {what}")))?;
         last_line.set(l);
-        t.parse::<f64>().map_err(|_| line_err(path, l, format!("{what}: '{t}' is not a number")))
+        t.parse::<f64>()
+            .map_err(|_| line_err(path, l, format!("{what}: '{t}' is not a number")))
     };
     let count = |x: f64, what: &str| -> Result<usize, MeshError> {
         if x < 0.0 || x.fract() != 0.0 || x > MAX_ELEMENTS as f64 {
@@ -636,7 +818,10 @@ pub fn read_off_bytes(path: &str, bytes: &[u8]) -> Result<Mesh, MeshError> {
         let w = format!("vertex {i}");
         let v = V3::new(num(&w)?, num(&w)?, num(&w)?);
         if !v.iter().all(|c| c.is_finite()) {
-            return Err(content_err(path, format!("vertex {i}: non-finite coordinate")));
+            return Err(content_err(
+                path,
+                format!("vertex {i}: non-finite coordinate"),
+            ));
         }
         mesh.vertices.push(v);
     }
@@ -644,7 +829,11 @@ pub fn read_off_bytes(path: &str, bytes: &[u8]) -> Result<Mesh, MeshError> {
         let w = format!("face {f}");
         let n = num(&w)?;
         if !(3.0..=1_000_000.0).contains(&n) || n.fract() != 0.0 {
-            return Err(line_err(path, last_line.get(), format!("face {f}: bad corner count {n}")));
+            return Err(line_err(
+                path,
+                last_line.get(),
+                format!("face {f}: bad corner count {n}"),
+            ));
         }
         let idx: Vec<f64> = (0..n as usize).map(|_| num(&w)).collect::<Result<_, _>>()?;
         push_polygon(&mut mesh.triangles, &idx, nv, true)
@@ -660,7 +849,12 @@ mod tests {
 
     fn tet() -> Mesh {
         Mesh::new(
-            vec![V3::new(0., 0., 0.), V3::new(1., 0., 0.), V3::new(0., 1., 0.), V3::new(0., 0., 1.)],
+            vec![
+                V3::new(0., 0., 0.),
+                V3::new(1., 0., 0.),
+                V3::new(0., 1., 0.),
+                V3::new(0., 0., 1.),
+            ],
             vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]],
         )
     }
@@ -681,7 +875,8 @@ mod tests {
 
     #[test]
     fn obj_keeps_file_vertex_order_and_groups() {
-        let src = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\ng first\nf 4 2 1\ng second\nf 1 3 4\nf 2 3 4 1\n";
+        let src =
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\ng first\nf 4 2 1\ng second\nf 1 3 4\nf 2 3 4 1\n";
         let m = read_obj_bytes("t.obj", src.as_bytes()).unwrap();
         assert_eq!(m.vertices[3], V3::new(0., 0., 1.));
         assert_eq!(m.triangles[0], [3, 1, 0]);

@@ -20,9 +20,16 @@ pub struct Landmark {
 #[derive(Debug, thiserror::Error)]
 pub enum LandmarkError {
     #[error("{path}: {source}")]
-    Io { path: String, source: std::io::Error },
+    Io {
+        path: String,
+        source: std::io::Error,
+    },
     #[error("{path}: line {line}: {msg}")]
-    Line { path: String, line: usize, msg: String },
+    Line {
+        path: String,
+        line: usize,
+        msg: String,
+    },
     #[error("{path}: {msg}")]
     Content { path: String, msg: String },
 }
@@ -31,38 +38,65 @@ pub enum LandmarkError {
 /// text.
 pub fn read_landmarks(path: &Path) -> Result<Vec<Landmark>, LandmarkError> {
     let name = path.display().to_string();
-    let bytes = std::fs::read(path).map_err(|source| LandmarkError::Io { path: name.clone(), source })?;
-    let is_pp = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("pp"));
-    if is_pp { parse_pp(&name, &bytes) } else { parse_text(&name, &bytes) }
+    let bytes = std::fs::read(path).map_err(|source| LandmarkError::Io {
+        path: name.clone(),
+        source,
+    })?;
+    let is_pp = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("pp"));
+    if is_pp {
+        parse_pp(&name, &bytes)
+    } else {
+        parse_text(&name, &bytes)
+    }
 }
 
 /// Parses the text form; every name must be unique.
 pub fn parse_text(path: &str, bytes: &[u8]) -> Result<Vec<Landmark>, LandmarkError> {
-    let text = std::str::from_utf8(bytes)
-        .map_err(|_| LandmarkError::Content { path: path.into(), msg: "not a text file".into() })?;
+    let text = std::str::from_utf8(bytes).map_err(|_| LandmarkError::Content {
+        path: path.into(),
+        msg: "not a text file".into(),
+    })?;
     let mut out: Vec<Landmark> = Vec::new();
     for (i, raw) in text.lines().enumerate() {
         let line = raw.split('#').next().unwrap_or("").trim();
         if line.is_empty() {
             continue;
         }
-        let err = |msg: String| LandmarkError::Line { path: path.into(), line: i + 1, msg };
+        let err = |msg: String| LandmarkError::Line {
+            path: path.into(),
+            line: i + 1,
+            msg,
+        };
         let tok: Vec<&str> = line.split_whitespace().collect();
         let pos = match tok.len() {
             2 => LandmarkPos::Vertex(
-                tok[1].parse().map_err(|_| err(format!("'{}' is not a vertex index", tok[1])))?,
+                tok[1]
+                    .parse()
+                    .map_err(|_| err(format!("'{}' is not a vertex index", tok[1])))?,
             ),
             4 => {
                 let c: Vec<f64> = tok[1..]
                     .iter()
-                    .map(|t| t.parse::<f64>().map_err(|_| err(format!("'{t}' is not a number"))))
+                    .map(|t| {
+                        t.parse::<f64>()
+                            .map_err(|_| err(format!("'{t}' is not a number")))
+                    })
                     .collect::<Result<_, _>>()?;
                 if !c.iter().all(|x| x.is_finite()) {
-                    return Err(err(format!("landmark '{}' has a non-finite coordinate", tok[0])));
+                    return Err(err(format!(
+                        "landmark '{}' has a non-finite coordinate",
+                        tok[0]
+                    )));
                 }
                 LandmarkPos::Point(V3::new(c[0], c[1], c[2]))
             }
-            n => return Err(err(format!("expected 'name index' or 'name x y z', found {n} fields"))),
+            n => {
+                return Err(err(format!(
+                    "expected 'name index' or 'name x y z', found {n} fields"
+                )));
+            }
         };
         push_unique(&mut out, tok[0], pos).map_err(err)?;
     }
@@ -73,26 +107,40 @@ fn push_unique(out: &mut Vec<Landmark>, name: &str, pos: LandmarkPos) -> Result<
     if out.iter().any(|l| l.name == name) {
         return Err(format!("landmark '{name}' appears twice"));
     }
-    out.push(Landmark { name: name.to_string(), pos });
+    out.push(Landmark {
+        name: name.to_string(),
+        pos,
+    });
     Ok(())
 }
 
 /// Parses a MeshLab `.pp` file: `<point x=".." y=".." z=".." name=".." active="1"/>`.
 /// Inactive points are skipped.
 pub fn parse_pp(path: &str, bytes: &[u8]) -> Result<Vec<Landmark>, LandmarkError> {
-    let text = std::str::from_utf8(bytes)
-        .map_err(|_| LandmarkError::Content { path: path.into(), msg: "not a text file".into() })?;
+    let text = std::str::from_utf8(bytes).map_err(|_| LandmarkError::Content {
+        path: path.into(),
+        msg: "not a text file".into(),
+    })?;
     if !text.contains("PickedPoints") {
-        return Err(LandmarkError::Content { path: path.into(), msg: "not a MeshLab PickedPoints file".into() });
+        return Err(LandmarkError::Content {
+            path: path.into(),
+            msg: "not a MeshLab PickedPoints file".into(),
+        });
     }
     let mut out = Vec::new();
     let mut rest = text;
     let mut offset = 0;
     while let Some(start) = rest.find("<point") {
         let line = text[..offset + start].lines().count().max(1);
-        let err = |msg: String| LandmarkError::Line { path: path.into(), line, msg };
+        let err = |msg: String| LandmarkError::Line {
+            path: path.into(),
+            line,
+            msg,
+        };
         let tail = &rest[start..];
-        let end = tail.find('>').ok_or_else(|| err("unterminated <point> tag".into()))?;
+        let end = tail
+            .find('>')
+            .ok_or_else(|| err("unterminated <point> tag".into()))?;
         let tag = &tail[..end];
         let attr = |k: &str| -> Option<&str> {
             let pat = format!(" {k}=\"");
@@ -103,11 +151,21 @@ pub fn parse_pp(path: &str, bytes: &[u8]) -> Result<Vec<Landmark>, LandmarkError
             let mut c = [0.0; 3];
             for (k, n) in ["x", "y", "z"].iter().enumerate() {
                 let s = attr(n).ok_or_else(|| err(format!("<point> without {n}")))?;
-                c[k] = s.parse().ok().filter(|v: &f64| v.is_finite())
+                c[k] = s
+                    .parse()
+                    .ok()
+                    .filter(|v: &f64| v.is_finite())
                     .ok_or_else(|| err(format!("{n}=\"{s}\" is not a finite number")))?;
             }
-            let name = attr("name").map(str::to_string).unwrap_or_else(|| format!("p{}", out.len()));
-            push_unique(&mut out, &name, LandmarkPos::Point(V3::new(c[0], c[1], c[2]))).map_err(err)?;
+            let name = attr("name")
+                .map(str::to_string)
+                .unwrap_or_else(|| format!("p{}", out.len()));
+            push_unique(
+                &mut out,
+                &name,
+                LandmarkPos::Point(V3::new(c[0], c[1], c[2])),
+            )
+            .map_err(err)?;
         }
         offset += start + end;
         rest = &text[offset..];
@@ -135,7 +193,13 @@ pub fn resolve(lms: &[Landmark], mesh: &Mesh) -> Result<Vec<(String, V3)>, Strin
                 .vertices
                 .get(i as usize)
                 .map(|v| (l.name.clone(), *v))
-                .ok_or_else(|| format!("landmark '{}' names vertex {i}, but the mesh has {} vertices", l.name, mesh.vertices.len())),
+                .ok_or_else(|| {
+                    format!(
+                        "landmark '{}' names vertex {i}, but the mesh has {} vertices",
+                        l.name,
+                        mesh.vertices.len()
+                    )
+                }),
         })
         .collect()
 }
@@ -160,8 +224,13 @@ mod tests {
 
     #[test]
     fn bad_lines_are_named() {
-        let e = parse_text("a.txt", b"a 1\nb x y z\n").unwrap_err().to_string();
-        assert!(e.contains("line 2") && e.contains("'x' is not a number"), "{e}");
+        let e = parse_text("a.txt", b"a 1\nb x y z\n")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("line 2") && e.contains("'x' is not a number"),
+            "{e}"
+        );
         let e = parse_text("a.txt", b"a 1\na 2\n").unwrap_err().to_string();
         assert!(e.contains("appears twice"), "{e}");
         let e = parse_text("a.txt", b"a nan 0 0\n").unwrap_err().to_string();

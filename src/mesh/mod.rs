@@ -33,7 +33,12 @@ pub struct Mesh {
 
 impl Mesh {
     pub fn new(vertices: Vec<V3>, triangles: Vec<[u32; 3]>) -> Self {
-        Mesh { vertices, triangles, normals: None, groups: BTreeMap::new() }
+        Mesh {
+            vertices,
+            triangles,
+            normals: None,
+            groups: BTreeMap::new(),
+        }
     }
 
     pub fn is_point_cloud(&self) -> bool {
@@ -43,7 +48,11 @@ impl Mesh {
     /// Axis-aligned bounding box `(min, max)`; `None` for an empty mesh.
     pub fn bounding_box(&self) -> Option<(V3, V3)> {
         let first = *self.vertices.first()?;
-        Some(self.vertices.iter().fold((first, first), |(lo, hi), v| (lo.inf(v), hi.sup(v))))
+        Some(
+            self.vertices
+                .iter()
+                .fold((first, first), |(lo, hi), v| (lo.inf(v), hi.sup(v))),
+        )
     }
 
     /// Length of the bounding-box diagonal (0 for an empty mesh). Conformation tolerances
@@ -62,7 +71,11 @@ impl Mesh {
     /// Positions of one triangle's corners.
     pub fn corners(&self, t: usize) -> [V3; 3] {
         let [a, b, c] = self.triangles[t];
-        [self.vertices[a as usize], self.vertices[b as usize], self.vertices[c as usize]]
+        [
+            self.vertices[a as usize],
+            self.vertices[b as usize],
+            self.vertices[c as usize],
+        ]
     }
 
     /// Unnormalised triangle normal (length = twice the area).
@@ -78,25 +91,35 @@ impl Mesh {
 
     /// Total surface area.
     pub fn area(&self) -> f64 {
-        (0..self.triangles.len()).map(|t| 0.5 * self.face_normal_scaled(t).norm()).sum()
+        (0..self.triangles.len())
+            .map(|t| 0.5 * self.face_normal_scaled(t).norm())
+            .sum()
     }
 
     /// Checks that every index is in range and every coordinate finite; `what` names the
     /// mesh in the error.
     pub fn validate(&self, what: &str) -> Result<(), String> {
         let n = self.vertices.len() as u32;
-        if let Some(i) = self.vertices.iter().position(|v| !v.iter().all(|c| c.is_finite())) {
+        if let Some(i) = self
+            .vertices
+            .iter()
+            .position(|v| !v.iter().all(|c| c.is_finite()))
+        {
             return Err(format!("{what}: vertex {i} has a non-finite coordinate"));
         }
-        if let Some(t) = self.triangles.iter().position(|t| t.iter().any(|&i| i >= n)) {
+        if let Some(t) = self
+            .triangles
+            .iter()
+            .position(|t| t.iter().any(|&i| i >= n))
+        {
             return Err(format!(
                 "{what}: triangle {t} refers to a vertex index out of range (the mesh has {n} vertices)"
             ));
         }
-        if let Some(ns) = &self.normals {
-            if ns.len() != self.vertices.len() {
-                return Err(format!("{what}: {} normals for {} vertices", ns.len(), n));
-            }
+        if let Some(ns) = &self.normals
+            && ns.len() != self.vertices.len()
+        {
+            return Err(format!("{what}: {} normals for {} vertices", ns.len(), n));
         }
         Ok(())
     }

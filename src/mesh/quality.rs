@@ -27,7 +27,10 @@ impl Stat {
             return Stat::default();
         }
         let mean = s / n as f64;
-        Stat { mean, std: (s2 / n as f64 - mean * mean).max(0.0).sqrt() }
+        Stat {
+            mean,
+            std: (s2 / n as f64 - mean * mean).max(0.0).sqrt(),
+        }
     }
 }
 
@@ -61,7 +64,9 @@ pub struct VariationBaseline {
 }
 
 fn tri_area(p: &[V3], t: &[u32; 3]) -> f64 {
-    0.5 * (p[t[1] as usize] - p[t[0] as usize]).cross(&(p[t[2] as usize] - p[t[0] as usize])).norm()
+    0.5 * (p[t[1] as usize] - p[t[0] as usize])
+        .cross(&(p[t[2] as usize] - p[t[0] as usize]))
+        .norm()
 }
 
 fn tri_angles(p: &[V3], t: &[u32; 3]) -> [f64; 3] {
@@ -74,7 +79,10 @@ fn tri_angles(p: &[V3], t: &[u32; 3]) -> [f64; 3] {
 impl VariationBaseline {
     pub fn new(original: &[V3], tris: &[[u32; 3]]) -> Self {
         let edges = topology::edges(tris);
-        let lengths = edges.iter().map(|&[a, b]| (original[a as usize] - original[b as usize]).norm()).collect();
+        let lengths = edges
+            .iter()
+            .map(|&[a, b]| (original[a as usize] - original[b as usize]).norm())
+            .collect();
         VariationBaseline {
             lengths,
             edges,
@@ -88,12 +96,21 @@ impl VariationBaseline {
         let edge_length = Stat::of(self.edges.iter().zip(&self.lengths).map(|(&[a, b], &l0)| {
             ((deformed[a as usize] - deformed[b as usize]).norm() - l0) / l0
         }));
-        let area = Stat::of(self.tris.iter().zip(&self.areas).map(|(t, &a0)| (tri_area(deformed, t) - a0) / a0));
+        let area = Stat::of(
+            self.tris
+                .iter()
+                .zip(&self.areas)
+                .map(|(t, &a0)| (tri_area(deformed, t) - a0) / a0),
+        );
         let angle = Stat::of(self.tris.iter().zip(&self.angles).flat_map(|(t, a0)| {
             let a1 = tri_angles(deformed, t);
             (0..3).map(move |k| a1[k] - a0[k])
         }));
-        Variation { edge_length, angle, area }
+        Variation {
+            edge_length,
+            angle,
+            area,
+        }
     }
 }
 
@@ -104,9 +121,14 @@ impl VariationBaseline {
 pub fn folded_triangles(mesh: &Mesh) -> usize {
     let nt = mesh.triangles.len();
     let normals: Vec<Option<V3>> = (0..nt)
-        .map(|t| mesh.face_normal_scaled(t).try_normalize(0.0).filter(|n| n.iter().all(|c| c.is_finite())))
+        .map(|t| {
+            mesh.face_normal_scaled(t)
+                .try_normalize(0.0)
+                .filter(|n| n.iter().all(|c| c.is_finite()))
+        })
         .collect();
-    let mut by_edge: std::collections::HashMap<[u32; 2], Vec<usize>> = std::collections::HashMap::new();
+    let mut by_edge: std::collections::HashMap<[u32; 2], Vec<usize>> =
+        std::collections::HashMap::new();
     for (i, t) in mesh.triangles.iter().enumerate() {
         for k in 0..3 {
             let (a, b) = (t[k], t[(k + 1) % 3]);
@@ -117,22 +139,29 @@ pub fn folded_triangles(mesh: &Mesh) -> usize {
     for tris in by_edge.values() {
         for &i in tris {
             for &j in tris {
-                if let (Some(ni), Some(nj)) = (normals[i], normals[j]) {
-                    if i != j && ni.dot(&nj) < -0.866 {
-                        opposed[i] += 1;
-                    }
+                if let (Some(ni), Some(nj)) = (normals[i], normals[j])
+                    && i != j
+                    && ni.dot(&nj) < -0.866
+                {
+                    opposed[i] += 1;
                 }
             }
         }
     }
-    (0..nt).filter(|&i| normals[i].is_none() || opposed[i] >= 2).count()
+    (0..nt)
+        .filter(|&i| normals[i].is_none() || opposed[i] >= 2)
+        .count()
 }
 
 /// Triangles whose orientation disagrees with the same triangle in a reference (a ground
 /// truth, or the template): the normals point more than 90 degrees apart.
 pub fn flipped_against(result: &[V3], reference: &[V3], tris: &[[u32; 3]]) -> usize {
-    let n = |p: &[V3], t: &[u32; 3]| (p[t[1] as usize] - p[t[0] as usize]).cross(&(p[t[2] as usize] - p[t[0] as usize]));
-    tris.iter().filter(|t| n(result, t).dot(&n(reference, t)) <= 0.0).count()
+    let n = |p: &[V3], t: &[u32; 3]| {
+        (p[t[1] as usize] - p[t[0] as usize]).cross(&(p[t[2] as usize] - p[t[0] as usize]))
+    };
+    tris.iter()
+        .filter(|t| n(result, t).dot(&n(reference, t)) <= 0.0)
+        .count()
 }
 
 #[cfg(test)]
@@ -141,7 +170,12 @@ mod tests {
 
     #[test]
     fn uniform_scale_gives_constant_variations() {
-        let v = vec![V3::new(0., 0., 0.), V3::new(1., 0., 0.), V3::new(0., 1., 0.), V3::new(0., 0., 1.)];
+        let v = vec![
+            V3::new(0., 0., 0.),
+            V3::new(1., 0., 0.),
+            V3::new(0., 1., 0.),
+            V3::new(0., 0., 1.),
+        ];
         let t = vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]];
         let w: Vec<V3> = v.iter().map(|p| p * 2.0).collect();
         let var = variation(&v, &w, &t);

@@ -148,12 +148,19 @@ pub fn report(mesh: &Mesh) -> TopologyReport {
     let non_manifold_edges = counts.iter().filter(|(_, c)| *c > 2).count();
     let inconsistent_edges = counts
         .iter()
-        .filter(|([a, b], c)| *c == 2 && (directed.get(&(*a, *b)) != Some(&1) || directed.get(&(*b, *a)) != Some(&1)))
+        .filter(|([a, b], c)| {
+            *c == 2 && (directed.get(&(*a, *b)) != Some(&1) || directed.get(&(*b, *a)) != Some(&1))
+        })
         .count();
     let degenerate_triangles = tris
         .iter()
         .enumerate()
-        .filter(|(i, t)| t[0] == t[1] || t[1] == t[2] || t[0] == t[2] || mesh.face_normal_scaled(*i).norm() == 0.0)
+        .filter(|(i, t)| {
+            t[0] == t[1]
+                || t[1] == t[2]
+                || t[0] == t[2]
+                || mesh.face_normal_scaled(*i).norm() == 0.0
+        })
         .count();
     let (_, components) = components(mesh.vertices.len(), tris);
     TopologyReport {
@@ -179,7 +186,12 @@ mod tests {
 
     #[test]
     fn tetrahedron_is_watertight_and_open_one_is_not() {
-        let v = vec![V3::new(0., 0., 0.), V3::new(1., 0., 0.), V3::new(0., 1., 0.), V3::new(0., 0., 1.)];
+        let v = vec![
+            V3::new(0., 0., 0.),
+            V3::new(1., 0., 0.),
+            V3::new(0., 1., 0.),
+            V3::new(0., 0., 1.),
+        ];
         let closed = Mesh::new(v.clone(), vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]);
         assert!(report(&closed).watertight);
         let open = Mesh::new(v, vec![[0, 2, 1], [0, 1, 3], [0, 3, 2]]);

@@ -14,7 +14,11 @@ pub struct Similarity {
 
 impl Default for Similarity {
     fn default() -> Self {
-        Similarity { scale: 1.0, rotation: Rotation3::identity(), translation: V3::zeros() }
+        Similarity {
+            scale: 1.0,
+            rotation: Rotation3::identity(),
+            translation: V3::zeros(),
+        }
     }
 }
 
@@ -24,7 +28,11 @@ impl Similarity {
     }
     pub fn inverse(&self) -> Similarity {
         let r = self.rotation.inverse();
-        Similarity { scale: 1.0 / self.scale, rotation: r, translation: -(r * self.translation) / self.scale }
+        Similarity {
+            scale: 1.0 / self.scale,
+            rotation: r,
+            translation: -(r * self.translation) / self.scale,
+        }
     }
     /// `self` after `first`: x -> self(first(x))
     pub fn compose(&self, first: &Similarity) -> Similarity {
@@ -67,7 +75,11 @@ pub fn fit_similarity(src: &[V3], dst: &[V3], w: Option<&[f64]>, allow_scale: bo
         1.0
     };
     let rotation = Rotation3::from_matrix_unchecked(r);
-    Similarity { scale, rotation, translation: cd - rotation * cs * scale }
+    Similarity {
+        scale,
+        rotation,
+        translation: cd - rotation * cs * scale,
+    }
 }
 
 #[cfg(test)]
@@ -76,7 +88,9 @@ mod tests {
 
     #[test]
     fn recovers_a_known_similarity() {
-        let src: Vec<V3> = (0..20).map(|i| V3::new((i as f64).sin(), (i as f64 * 0.7).cos(), i as f64 * 0.1)).collect();
+        let src: Vec<V3> = (0..20)
+            .map(|i| V3::new((i as f64).sin(), (i as f64 * 0.7).cos(), i as f64 * 0.1))
+            .collect();
         let t = Similarity {
             scale: 1.7,
             rotation: Rotation3::from_euler_angles(0.3, -0.5, 1.2),

@@ -23,12 +23,17 @@ pub struct Case {
 }
 
 fn nearest(v: &[V3], p: &V3) -> u32 {
-    (0..v.len()).min_by(|&a, &b| (v[a] - p).norm().total_cmp(&(v[b] - p).norm())).unwrap_or(0) as u32
+    (0..v.len())
+        .min_by(|&a, &b| (v[a] - p).norm().total_cmp(&(v[b] - p).norm()))
+        .unwrap_or(0) as u32
 }
 
 fn sphere_landmarks(sphere: &Mesh, dirs: &[(String, V3)]) -> Vec<Landmark> {
     dirs.iter()
-        .map(|(n, d)| Landmark { name: n.clone(), pos: LandmarkPos::Vertex(nearest(&sphere.vertices, &d.normalize())) })
+        .map(|(n, d)| Landmark {
+            name: n.clone(),
+            pos: LandmarkPos::Vertex(nearest(&sphere.vertices, &d.normalize())),
+        })
         .collect()
 }
 
@@ -38,15 +43,30 @@ pub fn sphere_to_cube(level: u32) -> Case {
     let sphere = icosphere(level);
     let cube = tessellated_box(V3::new(2., 2., 2.), 24);
     let mut dirs = Vec::new();
-    for (i, c) in [[-1., -1., -1.], [1., -1., -1.], [-1., 1., -1.], [1., 1., -1.], [-1., -1., 1.], [1., -1., 1.], [-1., 1., 1.], [1., 1., 1.]]
-        .iter()
-        .enumerate()
+    for (i, c) in [
+        [-1., -1., -1.],
+        [1., -1., -1.],
+        [-1., 1., -1.],
+        [1., 1., -1.],
+        [-1., -1., 1.],
+        [1., -1., 1.],
+        [-1., 1., 1.],
+        [1., 1., 1.],
+    ]
+    .iter()
+    .enumerate()
     {
         dirs.push((format!("corner{i}"), V3::from(*c)));
     }
     Case {
         template_landmarks: sphere_landmarks(&sphere, &dirs),
-        scan_landmarks: dirs.iter().map(|(n, c)| Landmark { name: n.clone(), pos: LandmarkPos::Point(*c) }).collect(),
+        scan_landmarks: dirs
+            .iter()
+            .map(|(n, c)| Landmark {
+                name: n.clone(),
+                pos: LandmarkPos::Point(*c),
+            })
+            .collect(),
         in_hole: vec![false; sphere.vertices.len()],
         template: sphere,
         scan: cube,
@@ -64,7 +84,9 @@ pub fn sphere_to_box_with_missing(level: u32) -> Case {
     let sphere = icosphere(level);
     let size = V3::from(BOX_SIZE);
     let full = tessellated_box(size, 30);
-    let (scan, _) = keep_triangles(&full, |t| !in_box_hole(&full.corners(t).iter().sum::<V3>().scale(1.0 / 3.0)));
+    let (scan, _) = keep_triangles(&full, |t| {
+        !in_box_hole(&full.corners(t).iter().sum::<V3>().scale(1.0 / 3.0))
+    });
     let h = size / 2.0;
     let dirs: Vec<(String, V3, V3)> = vec![
         ("px".into(), V3::x(), V3::new(h.x, 0., 0.)),
@@ -75,8 +97,20 @@ pub fn sphere_to_box_with_missing(level: u32) -> Case {
         ("nz".into(), -V3::z(), V3::new(0., 0., -h.z)),
     ];
     Case {
-        template_landmarks: sphere_landmarks(&sphere, &dirs.iter().map(|(n, d, _)| (n.clone(), *d)).collect::<Vec<_>>()),
-        scan_landmarks: dirs.iter().map(|(n, _, p)| Landmark { name: n.clone(), pos: LandmarkPos::Point(*p) }).collect(),
+        template_landmarks: sphere_landmarks(
+            &sphere,
+            &dirs
+                .iter()
+                .map(|(n, d, _)| (n.clone(), *d))
+                .collect::<Vec<_>>(),
+        ),
+        scan_landmarks: dirs
+            .iter()
+            .map(|(n, _, p)| Landmark {
+                name: n.clone(),
+                pos: LandmarkPos::Point(*p),
+            })
+            .collect(),
         in_hole: vec![false; sphere.vertices.len()],
         template: sphere,
         scan,
@@ -116,7 +150,9 @@ pub fn box_figures(result: &Mesh) -> BoxFigures {
         // the nearest point of the box surface
         let mut q = p.zip_map(&h, |a, b| a.clamp(-b, b));
         let gaps = [h.x - q.x.abs(), h.y - q.y.abs(), h.z - q.z.abs()];
-        let k = (0..3).min_by(|&a, &b| gaps[a].total_cmp(&gaps[b])).unwrap_or(0);
+        let k = (0..3)
+            .min_by(|&a, &b| gaps[a].total_cmp(&gaps[b]))
+            .unwrap_or(0);
         q[k] = h[k].copysign(q[k]);
         if in_box_hole(&q) {
             missing.push(d);
@@ -126,8 +162,16 @@ pub fn box_figures(result: &Mesh) -> BoxFigures {
     let n = missing.len();
     BoxFigures {
         missing_vertices: n,
-        missing_mean: if n > 0 { missing.iter().sum::<f64>() / n as f64 } else { 0.0 },
-        missing_p90: if n > 0 { missing[(n * 9 / 10).min(n - 1)] } else { 0.0 },
+        missing_mean: if n > 0 {
+            missing.iter().sum::<f64>() / n as f64
+        } else {
+            0.0
+        },
+        missing_p90: if n > 0 {
+            missing[(n * 9 / 10).min(n - 1)]
+        } else {
+            0.0
+        },
         missing_max: missing.last().copied().unwrap_or(0.0),
         max_anywhere,
     }
@@ -147,7 +191,13 @@ pub struct ArticulatedSpec {
 
 impl Default for ArticulatedSpec {
     fn default() -> Self {
-        ArticulatedSpec { template_vertices: 6000, scan_points: 60_000, noise: 0.001, turned: false, seed: 7 }
+        ArticulatedSpec {
+            template_vertices: 6000,
+            scan_points: 60_000,
+            noise: 0.001,
+            turned: false,
+            seed: 7,
+        }
     }
 }
 
@@ -171,7 +221,11 @@ pub fn articulated_pose(turned: bool) -> Pose {
         twist: 15.0,
         scale: 1.08,
         turn: turned.then_some((V3::new(0.2, 0.3, 1.0), 35.0)),
-        shift: if turned { V3::new(0.4, -0.3, 0.2) } else { V3::zeros() },
+        shift: if turned {
+            V3::new(0.4, -0.3, 0.2)
+        } else {
+            V3::zeros()
+        },
     }
 }
 
@@ -197,7 +251,13 @@ pub fn articulated(spec: &ArticulatedSpec) -> Case {
     let mut views = scanner::ring_viewpoints(centre, r, 0.1 * diag, -60.0 + mid_turn, 120.0, 2);
     views.push(centre + V3::new(-0.1 * diag, 0.0, 1.2 * diag));
     let seen = scanner::visible_triangles(&subject, &views);
-    let scan = scanner::sample_points(&subject, &seen, spec.scan_points, spec.noise * diag, spec.seed);
+    let scan = scanner::sample_points(
+        &subject,
+        &seen,
+        spec.scan_points,
+        spec.noise * diag,
+        spec.seed,
+    );
     let mut in_hole = vec![true; truth.len()];
     for (t, tri) in subject.triangles.iter().enumerate() {
         if seen[t] {
@@ -212,12 +272,25 @@ pub fn articulated(spec: &ArticulatedSpec) -> Case {
     let scan_landmarks = template_landmarks
         .iter()
         .map(|l| {
-            let LandmarkPos::Vertex(v) = l.pos else { unreachable!("figure landmarks are vertices") };
-            let p = truth[v as usize] + V3::new(g.sample(&mut rng), g.sample(&mut rng), g.sample(&mut rng));
-            Landmark { name: l.name.clone(), pos: LandmarkPos::Point(p) }
+            let LandmarkPos::Vertex(v) = l.pos else {
+                unreachable!("figure landmarks are vertices")
+            };
+            let p = truth[v as usize]
+                + V3::new(g.sample(&mut rng), g.sample(&mut rng), g.sample(&mut rng));
+            Landmark {
+                name: l.name.clone(),
+                pos: LandmarkPos::Point(p),
+            }
         })
         .collect();
-    Case { template: fig.mesh, scan, template_landmarks, scan_landmarks, truth: Some(truth), in_hole }
+    Case {
+        template: fig.mesh,
+        scan,
+        template_landmarks,
+        scan_landmarks,
+        truth: Some(truth),
+        in_hole,
+    }
 }
 
 /// Correspondence error figures of a result against the truth, relative to the truth's
@@ -231,10 +304,23 @@ pub struct CorrespondenceError {
     pub flipped: usize,
 }
 
-pub fn correspondence_error(result: &[V3], truth: &[V3], in_hole: &[bool], tris: &[[u32; 3]]) -> CorrespondenceError {
+pub fn correspondence_error(
+    result: &[V3],
+    truth: &[V3],
+    in_hole: &[bool],
+    tris: &[[u32; 3]],
+) -> CorrespondenceError {
     let diag = Mesh::new(truth.to_vec(), vec![]).diagonal();
-    let mut e: Vec<f64> = result.iter().zip(truth).map(|(a, b)| (a - b).norm() / diag).collect();
-    let (hs, hc) = e.iter().zip(in_hole).filter(|(_, h)| **h).fold((0.0, 0usize), |(s, c), (x, _)| (s + x, c + 1));
+    let mut e: Vec<f64> = result
+        .iter()
+        .zip(truth)
+        .map(|(a, b)| (a - b).norm() / diag)
+        .collect();
+    let (hs, hc) = e
+        .iter()
+        .zip(in_hole)
+        .filter(|(_, h)| **h)
+        .fold((0.0, 0usize), |(s, c), (x, _)| (s + x, c + 1));
     let mean = e.iter().sum::<f64>() / e.len() as f64;
     e.sort_by(f64::total_cmp);
     CorrespondenceError {

@@ -4,7 +4,11 @@
 //! so the figure can be posed (joint rotations) and deformed (bend, twist, scale) with
 //! its vertex order unchanged: a posed figure is its own ground-truth correspondence.
 
-use crate::mesh::{Mesh, V3, landmarks::{Landmark, LandmarkPos}, topology};
+use crate::mesh::{
+    Mesh, V3,
+    landmarks::{Landmark, LandmarkPos},
+    topology,
+};
 use nalgebra::{Rotation3, Unit};
 use std::collections::{BTreeMap, HashMap};
 
@@ -35,9 +39,25 @@ impl Skeleton {
         self.bones.iter().position(|b| b.name == name)
     }
 
-    fn add(&mut self, name: &str, parent: Option<&str>, head: V3, tail: V3, r: (f64, f64), group: &str) {
+    fn add(
+        &mut self,
+        name: &str,
+        parent: Option<&str>,
+        head: V3,
+        tail: V3,
+        r: (f64, f64),
+        group: &str,
+    ) {
         let parent = parent.map(|p| self.bone(p).expect("parent bone defined first"));
-        self.bones.push(Bone { name: name.into(), parent, head, tail, r_head: r.0, r_tail: r.1, group: group.into() });
+        self.bones.push(Bone {
+            name: name.into(),
+            parent,
+            head,
+            tail,
+            r_head: r.0,
+            r_tail: r.1,
+            group: group.into(),
+        });
     }
 
     /// Signed distance (approximately) to the blended surface: negative inside.
@@ -69,26 +89,128 @@ fn round_cone(p: &V3, b: &Bone) -> f64 {
 /// with a nose, arms with hands, legs with feet. Front and back differ (nose, feet), so
 /// alignment without landmarks is well posed.
 pub fn humanoid() -> Skeleton {
-    let mut s = Skeleton { bones: vec![], blend: 0.035, landmarks: vec![] };
+    let mut s = Skeleton {
+        bones: vec![],
+        blend: 0.035,
+        landmarks: vec![],
+    };
     let v = V3::new;
-    s.add("pelvis", None, v(0., 0., 0.90), v(0., 0., 1.10), (0.15, 0.15), "torso");
-    s.add("chest", Some("pelvis"), v(0., 0., 1.10), v(0.01, 0., 1.38), (0.15, 0.17), "torso");
-    s.add("neck", Some("chest"), v(0., 0., 1.42), v(0., 0., 1.55), (0.055, 0.05), "head");
-    s.add("head", Some("neck"), v(0., 0., 1.62), v(0.01, 0., 1.70), (0.10, 0.095), "head");
+    s.add(
+        "pelvis",
+        None,
+        v(0., 0., 0.90),
+        v(0., 0., 1.10),
+        (0.15, 0.15),
+        "torso",
+    );
+    s.add(
+        "chest",
+        Some("pelvis"),
+        v(0., 0., 1.10),
+        v(0.01, 0., 1.38),
+        (0.15, 0.17),
+        "torso",
+    );
+    s.add(
+        "neck",
+        Some("chest"),
+        v(0., 0., 1.42),
+        v(0., 0., 1.55),
+        (0.055, 0.05),
+        "head",
+    );
+    s.add(
+        "head",
+        Some("neck"),
+        v(0., 0., 1.62),
+        v(0.01, 0., 1.70),
+        (0.10, 0.095),
+        "head",
+    );
     // a face the scanner can resolve: nose and chin, so the head has an orientation
-    s.add("nose", Some("head"), v(0.06, 0., 1.66), v(0.14, 0., 1.63), (0.035, 0.025), "head");
-    s.add("chin", Some("head"), v(0.03, 0., 1.58), v(0.09, 0., 1.56), (0.04, 0.03), "head");
+    s.add(
+        "nose",
+        Some("head"),
+        v(0.06, 0., 1.66),
+        v(0.14, 0., 1.63),
+        (0.035, 0.025),
+        "head",
+    );
+    s.add(
+        "chin",
+        Some("head"),
+        v(0.03, 0., 1.58),
+        v(0.09, 0., 1.56),
+        (0.04, 0.03),
+        "head",
+    );
     for (side, y) in [("l", 1.0), ("r", -1.0)] {
         let n = |b: &str| format!("{b}_{side}");
-        s.add(&n("shoulder"), Some("chest"), v(0., 0.10 * y, 1.36), v(0., 0.21 * y, 1.37), (0.07, 0.065), "torso");
-        s.add(&n("upper_arm"), Some(&n("shoulder")), v(0., 0.22 * y, 1.36), v(0.02, 0.42 * y, 1.22), (0.055, 0.045), "arms");
-        s.add(&n("forearm"), Some(&n("upper_arm")), v(0.02, 0.42 * y, 1.22), v(0.07, 0.58 * y, 1.06), (0.045, 0.035), "arms");
-        s.add(&n("hand"), Some(&n("forearm")), v(0.07, 0.58 * y, 1.06), v(0.10, 0.66 * y, 0.98), (0.035, 0.03), "hands");
-        s.add(&n("thigh"), Some("pelvis"), v(0., 0.09 * y, 0.88), v(0.02, 0.11 * y, 0.50), (0.085, 0.06), "legs");
-        s.add(&n("shin"), Some(&n("thigh")), v(0.02, 0.11 * y, 0.50), v(0., 0.12 * y, 0.10), (0.055, 0.04), "legs");
-        s.add(&n("foot"), Some(&n("shin")), v(0., 0.12 * y, 0.08), v(0.16, 0.12 * y, 0.04), (0.045, 0.035), "feet");
+        s.add(
+            &n("shoulder"),
+            Some("chest"),
+            v(0., 0.10 * y, 1.36),
+            v(0., 0.21 * y, 1.37),
+            (0.07, 0.065),
+            "torso",
+        );
+        s.add(
+            &n("upper_arm"),
+            Some(&n("shoulder")),
+            v(0., 0.22 * y, 1.36),
+            v(0.02, 0.42 * y, 1.22),
+            (0.055, 0.045),
+            "arms",
+        );
+        s.add(
+            &n("forearm"),
+            Some(&n("upper_arm")),
+            v(0.02, 0.42 * y, 1.22),
+            v(0.07, 0.58 * y, 1.06),
+            (0.045, 0.035),
+            "arms",
+        );
+        s.add(
+            &n("hand"),
+            Some(&n("forearm")),
+            v(0.07, 0.58 * y, 1.06),
+            v(0.10, 0.66 * y, 0.98),
+            (0.035, 0.03),
+            "hands",
+        );
+        s.add(
+            &n("thigh"),
+            Some("pelvis"),
+            v(0., 0.09 * y, 0.88),
+            v(0.02, 0.11 * y, 0.50),
+            (0.085, 0.06),
+            "legs",
+        );
+        s.add(
+            &n("shin"),
+            Some(&n("thigh")),
+            v(0.02, 0.11 * y, 0.50),
+            v(0., 0.12 * y, 0.10),
+            (0.055, 0.04),
+            "legs",
+        );
+        s.add(
+            &n("foot"),
+            Some(&n("shin")),
+            v(0., 0.12 * y, 0.08),
+            v(0.16, 0.12 * y, 0.04),
+            (0.045, 0.035),
+            "feet",
+        );
         s.landmarks.extend([
-            (n("hand_tip"), v(0.10 + 0.03 * 0.35, (0.66 + 0.03 * 0.9) * y, 0.98 - 0.03 * 0.2)),
+            (
+                n("hand_tip"),
+                v(
+                    0.10 + 0.03 * 0.35,
+                    (0.66 + 0.03 * 0.9) * y,
+                    0.98 - 0.03 * 0.2,
+                ),
+            ),
             (n("elbow"), v(0.0, 0.42 * y, 1.22 + 0.06)),
             (n("shoulder_top"), v(0., 0.21 * y, 1.37 + 0.07)),
             (n("knee"), v(0.02 + 0.06, 0.11 * y, 0.50)),
@@ -136,11 +258,21 @@ pub fn build(skel: &Skeleton, target_vertices: usize) -> Figure {
     let weights = skin_weights(skel, &mesh.vertices);
     let mut groups: BTreeMap<String, Vec<u32>> = BTreeMap::new();
     for (i, w) in weights.iter().enumerate() {
-        let b = w.iter().max_by(|a, b| a.1.total_cmp(&b.1)).map_or(0, |x| x.0);
-        groups.entry(skel.bones[b as usize].group.clone()).or_default().push(i as u32);
+        let b = w
+            .iter()
+            .max_by(|a, b| a.1.total_cmp(&b.1))
+            .map_or(0, |x| x.0);
+        groups
+            .entry(skel.bones[b as usize].group.clone())
+            .or_default()
+            .push(i as u32);
     }
     mesh.groups = groups;
-    Figure { skeleton: skel.clone(), mesh, weights }
+    Figure {
+        skeleton: skel.clone(),
+        mesh,
+        weights,
+    }
 }
 
 fn bounds(skel: &Skeleton) -> (V3, V3) {
@@ -176,21 +308,32 @@ fn mesh_sdf(skel: &Skeleton, lo: V3, hi: V3, h: f64) -> Mesh {
             if f.abs() < 1e-9 * h { 1e-9 * h } else { f }
         })
         .collect();
-    const TETS: [[usize; 4]; 6] = [[0, 1, 3, 7], [0, 1, 5, 7], [0, 2, 3, 7], [0, 2, 6, 7], [0, 4, 5, 7], [0, 4, 6, 7]];
+    const TETS: [[usize; 4]; 6] = [
+        [0, 1, 3, 7],
+        [0, 1, 5, 7],
+        [0, 2, 3, 7],
+        [0, 2, 6, 7],
+        [0, 4, 5, 7],
+        [0, 4, 6, 7],
+    ];
     let mut verts: Vec<V3> = Vec::new();
     let mut on_edge: HashMap<(usize, usize), u32> = HashMap::new();
     let mut tris: Vec<[u32; 3]> = Vec::new();
     for k in 0..nz - 1 {
         for j in 0..ny - 1 {
             for i in 0..nx - 1 {
-                let c: [usize; 8] = std::array::from_fn(|b| node(i + (b & 1), j + ((b >> 1) & 1), k + ((b >> 2) & 1)));
+                let c: [usize; 8] = std::array::from_fn(|b| {
+                    node(i + (b & 1), j + ((b >> 1) & 1), k + ((b >> 2) & 1))
+                });
                 if c.iter().all(|&id| field[id] > 0.0) || c.iter().all(|&id| field[id] < 0.0) {
                     continue;
                 }
                 for tet in TETS {
                     let t = tet.map(|b| c[b]);
-                    let inside: Vec<usize> = t.iter().copied().filter(|&id| field[id] < 0.0).collect();
-                    let outside: Vec<usize> = t.iter().copied().filter(|&id| field[id] >= 0.0).collect();
+                    let inside: Vec<usize> =
+                        t.iter().copied().filter(|&id| field[id] < 0.0).collect();
+                    let outside: Vec<usize> =
+                        t.iter().copied().filter(|&id| field[id] >= 0.0).collect();
                     if inside.is_empty() || outside.is_empty() {
                         continue;
                     }
@@ -202,12 +345,21 @@ fn mesh_sdf(skel: &Skeleton, lo: V3, hi: V3, h: f64) -> Mesh {
                             (verts.len() - 1) as u32
                         })
                     };
-                    let out_dir = outside.iter().map(|&o| pos(o)).sum::<V3>() / outside.len() as f64
+                    let out_dir = outside.iter().map(|&o| pos(o)).sum::<V3>()
+                        / outside.len() as f64
                         - inside.iter().map(|&o| pos(o)).sum::<V3>() / inside.len() as f64;
                     let mut polys: Vec<[u32; 3]> = Vec::new();
                     match (inside.len(), outside.len()) {
-                        (1, 3) => polys.push([cut(inside[0], outside[0]), cut(inside[0], outside[1]), cut(inside[0], outside[2])]),
-                        (3, 1) => polys.push([cut(outside[0], inside[0]), cut(outside[0], inside[1]), cut(outside[0], inside[2])]),
+                        (1, 3) => polys.push([
+                            cut(inside[0], outside[0]),
+                            cut(inside[0], outside[1]),
+                            cut(inside[0], outside[2]),
+                        ]),
+                        (3, 1) => polys.push([
+                            cut(outside[0], inside[0]),
+                            cut(outside[0], inside[1]),
+                            cut(outside[0], inside[2]),
+                        ]),
                         _ => {
                             let (a, b) = (inside[0], inside[1]);
                             let (p, q) = (outside[0], outside[1]);
@@ -217,7 +369,8 @@ fn mesh_sdf(skel: &Skeleton, lo: V3, hi: V3, h: f64) -> Mesh {
                         }
                     }
                     for mut tri in polys {
-                        let n = (verts[tri[1] as usize] - verts[tri[0] as usize]).cross(&(verts[tri[2] as usize] - verts[tri[0] as usize]));
+                        let n = (verts[tri[1] as usize] - verts[tri[0] as usize])
+                            .cross(&(verts[tri[2] as usize] - verts[tri[0] as usize]));
                         if n.dot(&out_dir) < 0.0 {
                             tri.swap(1, 2);
                         }
@@ -316,15 +469,16 @@ impl Figure {
         // bone transforms: rotation about its joint, composed down the hierarchy
         let mut xf: Vec<(Rotation3<f64>, V3)> = Vec::with_capacity(bones.len());
         for b in bones.iter() {
-            let local = pose
-                .joints
-                .iter()
-                .filter(|(n, _, _)| n == &b.name)
-                .fold(Rotation3::identity(), |r, (_, axis, deg)| {
+            let local = pose.joints.iter().filter(|(n, _, _)| n == &b.name).fold(
+                Rotation3::identity(),
+                |r, (_, axis, deg)| {
                     Rotation3::from_axis_angle(&Unit::new_normalize(*axis), deg.to_radians()) * r
-                });
+                },
+            );
             // x -> R_local (x - head) + head, then the parent's transform
-            let (pr, pt) = b.parent.map_or((Rotation3::identity(), V3::zeros()), |p| xf[p]);
+            let (pr, pt) = b
+                .parent
+                .map_or((Rotation3::identity(), V3::zeros()), |p| xf[p]);
             let r = pr * local;
             let t = pr * (b.head - local * b.head) + pt;
             xf.push((r, t));
@@ -332,16 +486,23 @@ impl Figure {
         let (lo, hi) = self.mesh.bounding_box().unwrap_or_default();
         let height = (hi.z - lo.z).max(1e-9);
         let scale = if pose.scale > 0.0 { pose.scale } else { 1.0 };
-        let turn = pose.turn.map(|(a, d)| Rotation3::from_axis_angle(&Unit::new_normalize(a), d.to_radians()));
+        let turn = pose
+            .turn
+            .map(|(a, d)| Rotation3::from_axis_angle(&Unit::new_normalize(a), d.to_radians()));
         self.mesh
             .vertices
             .iter()
             .zip(&self.weights)
             .map(|(p, w)| {
-                let mut q = w.iter().map(|&(b, wt)| (xf[b as usize].0 * p + xf[b as usize].1) * wt).sum::<V3>();
+                let mut q = w
+                    .iter()
+                    .map(|&(b, wt)| (xf[b as usize].0 * p + xf[b as usize].1) * wt)
+                    .sum::<V3>();
                 let f = (q.z - lo.z) / height;
                 let pivot = V3::new(0., 0., lo.z);
-                q = Rotation3::from_axis_angle(&V3::y_axis(), (pose.bend * f).to_radians()) * (q - pivot) + pivot;
+                q = Rotation3::from_axis_angle(&V3::y_axis(), (pose.bend * f).to_radians())
+                    * (q - pivot)
+                    + pivot;
                 q = Rotation3::from_axis_angle(&V3::z_axis(), (pose.twist * f).to_radians()) * q;
                 q *= scale;
                 if let Some(r) = turn {
@@ -359,9 +520,16 @@ impl Figure {
             .iter()
             .map(|(name, p)| {
                 let v = (0..self.mesh.vertices.len())
-                    .min_by(|&a, &b| (self.mesh.vertices[a] - p).norm().total_cmp(&(self.mesh.vertices[b] - p).norm()))
+                    .min_by(|&a, &b| {
+                        (self.mesh.vertices[a] - p)
+                            .norm()
+                            .total_cmp(&(self.mesh.vertices[b] - p).norm())
+                    })
                     .unwrap_or(0);
-                Landmark { name: name.clone(), pos: LandmarkPos::Vertex(v as u32) }
+                Landmark {
+                    name: name.clone(),
+                    pos: LandmarkPos::Vertex(v as u32),
+                }
             })
             .collect()
     }

@@ -15,16 +15,43 @@ use std::collections::HashMap;
 pub fn icosphere(level: u32) -> Mesh {
     let t = (1.0 + 5f64.sqrt()) / 2.0;
     let mut v: Vec<V3> = [
-        (-1., t, 0.), (1., t, 0.), (-1., -t, 0.), (1., -t, 0.), (0., -1., t), (0., 1., t),
-        (0., -1., -t), (0., 1., -t), (t, 0., -1.), (t, 0., 1.), (-t, 0., -1.), (-t, 0., 1.),
+        (-1., t, 0.),
+        (1., t, 0.),
+        (-1., -t, 0.),
+        (1., -t, 0.),
+        (0., -1., t),
+        (0., 1., t),
+        (0., -1., -t),
+        (0., 1., -t),
+        (t, 0., -1.),
+        (t, 0., 1.),
+        (-t, 0., -1.),
+        (-t, 0., 1.),
     ]
     .iter()
     .map(|&(x, y, z)| V3::new(x, y, z).normalize())
     .collect();
     let mut f: Vec<[u32; 3]> = vec![
-        [0, 11, 5], [0, 5, 1], [0, 1, 7], [0, 7, 10], [0, 10, 11], [1, 5, 9], [5, 11, 4],
-        [11, 10, 2], [10, 7, 6], [7, 1, 8], [3, 9, 4], [3, 4, 2], [3, 2, 6], [3, 6, 8],
-        [3, 8, 9], [4, 9, 5], [2, 4, 11], [6, 2, 10], [8, 6, 7], [9, 8, 1],
+        [0, 11, 5],
+        [0, 5, 1],
+        [0, 1, 7],
+        [0, 7, 10],
+        [0, 10, 11],
+        [1, 5, 9],
+        [5, 11, 4],
+        [11, 10, 2],
+        [10, 7, 6],
+        [7, 1, 8],
+        [3, 9, 4],
+        [3, 4, 2],
+        [3, 2, 6],
+        [3, 6, 8],
+        [3, 8, 9],
+        [4, 9, 5],
+        [2, 4, 11],
+        [6, 2, 10],
+        [8, 6, 7],
+        [9, 8, 1],
     ];
     for _ in 0..level {
         let mut mid: HashMap<(u32, u32), u32> = HashMap::new();
@@ -76,12 +103,15 @@ pub fn tessellated_box(size: V3, n: usize) -> Mesh {
                         g[w] = -ni + 2 * (j + dj);
                         g
                     };
-                    let q = [corner(0, 0), corner(1, 0), corner(1, 1), corner(0, 1)].map(|g| vid(g, &mut mesh));
+                    let q = [corner(0, 0), corner(1, 0), corner(1, 1), corner(0, 1)]
+                        .map(|g| vid(g, &mut mesh));
                     // u x w = axis direction: counter-clockwise seen from +axis
                     if side > 0 {
-                        mesh.triangles.extend([[q[0], q[1], q[2]], [q[0], q[2], q[3]]]);
+                        mesh.triangles
+                            .extend([[q[0], q[1], q[2]], [q[0], q[2], q[3]]]);
                     } else {
-                        mesh.triangles.extend([[q[0], q[2], q[1]], [q[0], q[3], q[2]]]);
+                        mesh.triangles
+                            .extend([[q[0], q[2], q[1]], [q[0], q[3], q[2]]]);
                     }
                 }
             }

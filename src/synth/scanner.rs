@@ -13,7 +13,11 @@ use rand_distr::{Distribution, Normal};
 /// #F flags: seen from at least one of `viewpoints`.
 pub fn visible_triangles(mesh: &Mesh, viewpoints: &[V3]) -> Vec<bool> {
     use rayon::prelude::*;
-    let verts: Vec<PVec> = mesh.vertices.iter().map(|p| PVec::new(p.x, p.y, p.z)).collect();
+    let verts: Vec<PVec> = mesh
+        .vertices
+        .iter()
+        .map(|p| PVec::new(p.x, p.y, p.z))
+        .collect();
     let Ok(tm) = TriMesh::new(verts, mesh.triangles.clone()) else {
         return vec![false; mesh.triangles.len()];
     };
@@ -32,7 +36,8 @@ pub fn visible_triangles(mesh: &Mesh, viewpoints: &[V3]) -> Vec<bool> {
                 let dist = to.norm();
                 let dir = to / dist;
                 let ray = Ray::new(PVec::new(v.x, v.y, v.z), PVec::new(dir.x, dir.y, dir.z));
-                tm.cast_local_ray(&ray, dist + eps, false).is_none_or(|toi| toi >= dist - 10.0 * eps)
+                tm.cast_local_ray(&ray, dist + eps, false)
+                    .is_none_or(|toi| toi >= dist - 10.0 * eps)
             })
         })
         .collect()
@@ -79,7 +84,14 @@ pub fn sample_points(mesh: &Mesh, mask: &[bool], count: usize, noise: f64, seed:
 
 /// Viewpoints on a ring around `centre` at `radius`, `height` above it, starting at
 /// `start_deg` (0 = +x) and stepping `step_deg`.
-pub fn ring_viewpoints(centre: V3, radius: f64, height: f64, start_deg: f64, step_deg: f64, n: usize) -> Vec<V3> {
+pub fn ring_viewpoints(
+    centre: V3,
+    radius: f64,
+    height: f64,
+    start_deg: f64,
+    step_deg: f64,
+    n: usize,
+) -> Vec<V3> {
     (0..n)
         .map(|i| {
             let a = (start_deg + step_deg * i as f64).to_radians();
