@@ -6,4 +6,6 @@
 pub mod conform;
 pub mod jobs;
 pub mod mesh;
+pub mod model;
+pub mod render;
 pub mod synth;

@@ -54,12 +54,93 @@ enum Cmd {
         #[arg(long, default_value = "demo-output")]
         out: PathBuf,
     },
+    /// Write a generic pig or body template (OBJ with groups, or PLY) and its landmarks.
+    Template {
+        /// `pig` or `body`
+        kind: conformd::synth::templates::Kind,
+        /// about how many vertices (2,000 to 100,000 is usual)
+        #[arg(long, default_value_t = 10_000)]
+        vertices: usize,
+        /// pose, degrees per joint group, e.g. `swing=12,nod=-8,twist=5`
+        #[arg(long, default_value = "")]
+        pose: String,
+        /// shape factors, e.g. `length=1.1,girth=0.95`
+        #[arg(long, default_value = "")]
+        shape: String,
+        /// output mesh (.obj keeps the groups); landmarks go beside it as .landmarks
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Render a shaded preview PNG of a mesh.
+    Render {
+        mesh: PathBuf,
+        /// `none`, `group`, or `distance-to=SCAN`
+        #[arg(long, default_value = "none")]
+        colour_by: jobs::ColourBy,
+        /// comma-separated views: front, back, left, right, side, top, three-quarter
+        #[arg(long, default_value = "three-quarter,side", value_delimiter = ',')]
+        views: Vec<String>,
+        #[arg(long, default_value_t = 800)]
+        width: u32,
+        #[arg(long, default_value_t = 600)]
+        height: u32,
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Statistical shape model over conformed meshes.
+    Model {
+        #[command(subcommand)]
+        cmd: ModelCmd,
+    },
     /// Describe a mesh: topology, watertightness, folded triangles, and with --original
     /// the paper's variation figures against it.
     Info {
         mesh: PathBuf,
         #[arg(long)]
         original: Option<PathBuf>,
+    },
+}
+
+#[derive(Subcommand)]
+enum ModelCmd {
+    /// Build a model from conformed meshes (one template).
+    Build {
+        /// conformed meshes
+        #[arg(required = true)]
+        meshes: Vec<PathBuf>,
+        #[arg(long)]
+        out: PathBuf,
+        /// procrustes (shape only), rigid (size kept) or none
+        #[arg(long, default_value = "procrustes")]
+        align: conformd::model::Align,
+        /// model one vertex group alone (e.g. torso)
+        #[arg(long)]
+        group: Option<String>,
+        #[arg(long, default_value_t = 30)]
+        max_modes: usize,
+        /// also compute compactness, generalisation and specificity (slower)
+        #[arg(long)]
+        quality: bool,
+    },
+    /// Mean and mean +/- k sigma along the first modes, as meshes and a PNG sheet.
+    Modes {
+        #[arg(long)]
+        model: PathBuf,
+        #[arg(long, default_value_t = 3)]
+        modes: usize,
+        #[arg(long, default_value_t = 3.0)]
+        sigma: f64,
+        #[arg(long, default_value = "three-quarter")]
+        view: String,
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Mode scores, reconstruction residual and Mahalanobis distance of meshes.
+    Score {
+        #[arg(long)]
+        model: PathBuf,
+        #[arg(required = true)]
+        meshes: Vec<PathBuf>,
     },
 }
 
@@ -177,6 +258,52 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
                 println!("wrote {}", f.display());
             }
         }
+        Cmd::Template { kind, vertices, pose, shape, out } => {
+            let s = jobs::template(kind, vertices, &pose, &shape, &out)?;
+            println!(
+                "{kind:?} template: {} vertices, {} triangles, {} landmarks, groups {}; watertight {}",
+                s.vertices,
+                s.triangles,
+                s.landmark_count,
+                s.groups.iter().map(|(g, n)| format!("{g} ({n})")).collect::<Vec<_>>().join(", "),
+                s.watertight
+            );
+            println!("wrote {}\nwrote {}", s.mesh.display(), s.landmarks.display());
+        }
+        Cmd::Render { mesh, colour_by, views, width, height, out } => {
+            jobs::render(&mesh, &colour_by, &views, width, height, &out)?;
+            println!("wrote {}", out.display());
+        }
+        Cmd::Model { cmd } => match cmd {
+            ModelCmd::Build { meshes, out, align, group, max_modes, quality } => {
+                let opts = conformd::model::BuildOptions { align, group, max_modes };
+                let (m, q) = jobs::model_build(&meshes, &opts, &out, quality)?;
+                println!("model of {} meshes, {} vertices, {} modes", m.samples.len(), m.indices.len(), m.modes.len());
+                let mut cum = 0.0;
+                for (i, e) in m.explained.iter().enumerate().take(10) {
+                    cum += e;
+                    println!("  mode {:>2}: {:5.1}% of the variance ({:5.1}% cumulative)", i + 1, e * 100.0, cum * 100.0);
+                }
+                if let Some(q) = q {
+                    println!("  modes  compactness  generalisation  specificity");
+                    for i in 0..q.modes.len() {
+                        println!("  {:>5}  {:>11.3}  {:>14.4e}  {:>11.4e}", q.modes[i], q.compactness[i], q.generalisation[i], q.specificity[i]);
+                    }
+                }
+                println!("wrote {}", out.display());
+            }
+            ModelCmd::Modes { model, modes, sigma, view, out } => {
+                for f in jobs::model_modes(&model, modes, sigma, &view, &out)? {
+                    println!("wrote {}", f.display());
+                }
+            }
+            ModelCmd::Score { model, meshes } => {
+                for s in jobs::model_score(&model, &meshes)? {
+                    let z: Vec<String> = s.scores_sd.iter().take(5).map(|z| format!("{z:+.2}")).collect();
+                    println!("{}: scores (sd) [{}], residual {:.3e}, mahalanobis {:.2}", s.name, z.join(", "), s.residual, s.mahalanobis);
+                }
+            }
+        },
         Cmd::Info { mesh, original } => {
             let i = jobs::info(&mesh, original.as_deref())?;
             println!("{}", serde_json::to_string_pretty(&i).expect("serialises"));

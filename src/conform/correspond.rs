@@ -150,6 +150,18 @@ impl ScanSurface {
         }
     }
 
+    /// Distance from `x` to the scan: to its surface for a mesh, to its nearest point for
+    /// a cloud (for colouring previews and reports; no limits apply).
+    pub fn distance(&self, x: &V3) -> f64 {
+        match &self.index {
+            Index::Mesh { tri, .. } => {
+                let (proj, _) = tri.project_local_point_and_get_location(PVec::new(x.x, x.y, x.z), false);
+                (V3::new(proj.point.x, proj.point.y, proj.point.z) - x).norm()
+            }
+            Index::Cloud { .. } => self.nearest_point(x).1,
+        }
+    }
+
     /// Nearest scan point (index, distance), for alignment.
     pub fn nearest_point(&self, x: &V3) -> (usize, f64) {
         let r = self.tree.nearest_one::<SquaredEuclidean>(&[x.x, x.y, x.z]);

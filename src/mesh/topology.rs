@@ -130,6 +130,8 @@ pub struct TopologyReport {
     /// Edges whose two triangles traverse it in the same direction.
     pub inconsistent_edges: usize,
     pub degenerate_triangles: usize,
+    /// vertices whose triangles do not form one fan (two cones touching at a point)
+    pub non_manifold_vertices: usize,
     pub watertight: bool,
 }
 
@@ -163,7 +165,9 @@ pub fn report(mesh: &Mesh) -> TopologyReport {
         })
         .count();
     let (_, components) = components(mesh.vertices.len(), tris);
+    let non_manifold_vertices = non_manifold_vertices(mesh.vertices.len(), tris);
     TopologyReport {
+        non_manifold_vertices,
         vertices: mesh.vertices.len(),
         triangles: tris.len(),
         components,
@@ -175,8 +179,40 @@ pub fn report(mesh: &Mesh) -> TopologyReport {
             && boundary_edges == 0
             && non_manifold_edges == 0
             && inconsistent_edges == 0
-            && degenerate_triangles == 0,
+            && degenerate_triangles == 0
+            && non_manifold_vertices == 0,
     }
+}
+
+/// Counts vertices whose link (the edges opposite them in their triangles) is not one
+/// connected fan or cycle.
+pub fn non_manifold_vertices(nv: usize, tris: &[[u32; 3]]) -> usize {
+    let mut link: Vec<Vec<[u32; 2]>> = vec![Vec::new(); nv];
+    for t in tris {
+        for k in 0..3 {
+            link[t[k] as usize].push([t[(k + 1) % 3], t[(k + 2) % 3]]);
+        }
+    }
+    link.iter()
+        .filter(|edges| {
+            if edges.is_empty() {
+                return false;
+            }
+            // the link's edges, followed through shared vertices, must reach all of them
+            let mut seen = vec![false; edges.len()];
+            let mut stack = vec![0usize];
+            seen[0] = true;
+            while let Some(e) = stack.pop() {
+                for (j, f) in edges.iter().enumerate() {
+                    if !seen[j] && (f[0] == edges[e][0] || f[0] == edges[e][1] || f[1] == edges[e][0] || f[1] == edges[e][1]) {
+                        seen[j] = true;
+                        stack.push(j);
+                    }
+                }
+            }
+            seen.iter().any(|s| !s)
+        })
+        .count()
 }
 
 #[cfg(test)]
@@ -201,5 +237,13 @@ mod tests {
         assert_eq!(boundary_loops(&open.triangles).len(), 1);
         assert_eq!(boundary_loops(&open.triangles)[0].len(), 3);
         assert_eq!(vertex_neighbours(4, &open.triangles)[0], vec![1, 2, 3]);
+        // two tetrahedra sharing only vertex 0: that vertex is not manifold
+        let mut v2 = closed.vertices.clone();
+        v2.extend([V3::new(-1., 0., 0.), V3::new(0., -1., 0.), V3::new(0., 0., -1.)]);
+        let mut t2 = closed.triangles.clone();
+        t2.extend([[0, 4, 5], [0, 5, 6], [0, 6, 4], [4, 6, 5]]);
+        let r = report(&Mesh::new(v2, t2));
+        assert_eq!(r.non_manifold_vertices, 1);
+        assert!(!r.watertight);
     }
 }

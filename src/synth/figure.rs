@@ -39,7 +39,7 @@ impl Skeleton {
         self.bones.iter().position(|b| b.name == name)
     }
 
-    fn add(
+    pub(crate) fn add(
         &mut self,
         name: &str,
         parent: Option<&str>,

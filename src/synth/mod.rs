@@ -6,6 +6,7 @@
 pub mod cases;
 pub mod figure;
 pub mod scanner;
+pub mod templates;
 
 use crate::mesh::{Mesh, V3};
 use std::collections::HashMap;

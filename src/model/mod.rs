@@ -1,0 +1,448 @@
+//! The statistical shape model (Ju et al. 2004, section 3.3): generalised Procrustes
+//! alignment of conformed meshes, principal component analysis (the Gram-matrix route,
+//! since there are far fewer samples than coordinates), mode scores, reconstruction
+//! residuals, Mahalanobis outlier figures, and the model quality figures (compactness,
+//! generalisation, specificity). One vertex group alone (a segment) can be modelled.
+
+use crate::mesh::transform::{Similarity, fit_similarity};
+use crate::mesh::{Mesh, V3};
+use nalgebra::{DMatrix, SymmetricEigen};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal};
+use rayon::prelude::*;
+
+pub const FORMAT: &str = "conformd-shape-model";
+pub const VERSION: u32 = 1;
+
+#[derive(Debug, thiserror::Error)]
+pub enum ModelError {
+    #[error("a model needs at least 3 meshes, got {0}")]
+    TooFew(usize),
+    #[error("{name}: it has {got} vertices, but {first} has {want}: meshes of one model must be conformed from one template")]
+    VertexCount { name: String, got: usize, first: String, want: usize },
+    #[error("{name}: its triangles differ from {first}'s: meshes of one model must be conformed from one template")]
+    Topology { name: String, first: String },
+    #[error("{name}: it was not conformed from this model's template ({detail})")]
+    WrongTemplate { name: String, detail: String },
+    #[error("the template has no vertex group '{group}' (it has: {known})")]
+    NoGroup { group: String, known: String },
+    #[error("{name}: non-finite coordinate at vertex {vertex}")]
+    NotFinite { name: String, vertex: usize },
+    #[error("{path}: not a valid shape model: {msg}")]
+    File { path: String, msg: String },
+}
+
+/// How samples are aligned before the analysis.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Align {
+    /// similarity (translation, rotation, scale): shape alone
+    Procrustes,
+    /// translation and rotation: size stays in the model (a growing pig)
+    Rigid,
+    /// as they are (already in one frame)
+    None,
+}
+
+impl std::str::FromStr for Align {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "procrustes" => Ok(Align::Procrustes),
+            "rigid" => Ok(Align::Rigid),
+            "none" => Ok(Align::None),
+            _ => Err(format!("unknown alignment '{s}' (expected procrustes, rigid or none)")),
+        }
+    }
+}
+
+#[derive(Debug, Clone)]
+pub struct BuildOptions {
+    pub align: Align,
+    /// model one vertex group alone
+    pub group: Option<String>,
+    /// modes kept at most
+    pub max_modes: usize,
+}
+
+impl Default for BuildOptions {
+    fn default() -> Self {
+        BuildOptions { align: Align::Procrustes, group: None, max_modes: 30 }
+    }
+}
+
+/// A point distribution model over one template's vertices (or one group of them).
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+pub struct ShapeModel {
+    pub format: String,
+    pub version: u32,
+    /// the template's vertex count and a fingerprint of its triangles
+    pub template_vertices: usize,
+    pub template_fingerprint: String,
+    pub align: Align,
+    pub group: Option<String>,
+    /// template vertex indices the model covers (all, or the group's)
+    pub indices: Vec<u32>,
+    /// triangles among those vertices, re-indexed, for drawing the model's shapes
+    pub triangles: Vec<[u32; 3]>,
+    pub samples: Vec<String>,
+    /// 3 * #indices coordinates
+    pub mean: Vec<f64>,
+    /// one unit vector of 3 * #indices coordinates per mode
+    pub modes: Vec<Vec<f32>>,
+    /// variance along each mode (squared units, per coordinate vector)
+    pub variances: Vec<f64>,
+    /// share of the total variance each mode explains
+    pub explained: Vec<f64>,
+    pub total_variance: f64,
+}
+
+/// Stable 64-bit FNV-1a of the vertex count and triangles (a model file outlives builds,
+/// so no hasher whose output may change between Rust versions).
+pub fn fingerprint(vertices: usize, tris: &[[u32; 3]]) -> String {
+    let mut h: u64 = 0xcbf29ce484222325;
+    let mut eat = |x: u32| {
+        for b in x.to_le_bytes() {
+            h ^= b as u64;
+            h = h.wrapping_mul(0x100000001b3);
+        }
+    };
+    eat(vertices as u32);
+    for t in tris {
+        t.iter().for_each(|&i| eat(i));
+    }
+    format!("{h:016x}")
+}
+
+/// One sample's figures against a model.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct Score {
+    pub name: String,
+    /// mode scores, in units of each mode's standard deviation
+    pub scores_sd: Vec<f64>,
+    /// raw mode scores
+    pub scores: Vec<f64>,
+    /// root-mean-square per-vertex distance between the sample and its reconstruction
+    pub residual: f64,
+    /// Mahalanobis distance over the modes: large means unlike the training set
+    pub mahalanobis: f64,
+}
+
+fn flatten(v: &[V3]) -> Vec<f64> {
+    v.iter().flat_map(|p| [p.x, p.y, p.z]).collect()
+}
+
+fn unflatten(x: &[f64]) -> Vec<V3> {
+    x.chunks_exact(3).map(|c| V3::new(c[0], c[1], c[2])).collect()
+}
+
+fn centroid_size(v: &[V3]) -> f64 {
+    let c = v.iter().sum::<V3>() / v.len() as f64;
+    (v.iter().map(|p| (p - c).norm_squared()).sum::<f64>() / v.len() as f64).sqrt()
+}
+
+/// Aligns shapes to each other (generalised Procrustes): returns them in the mean's frame.
+fn align_all(shapes: &[Vec<V3>], align: Align) -> Vec<Vec<V3>> {
+    if align == Align::None {
+        return shapes.to_vec();
+    }
+    let scale = align == Align::Procrustes;
+    let mean_size = shapes.iter().map(|s| centroid_size(s)).sum::<f64>() / shapes.len() as f64;
+    let mut mean = shapes[0].clone();
+    for _ in 0..20 {
+        let aligned: Vec<Vec<V3>> = shapes.par_iter().map(|s| apply(&fit_similarity(s, &mean, None, scale), s)).collect();
+        let mut next: Vec<V3> = (0..mean.len()).map(|i| aligned.iter().map(|s| s[i]).sum::<V3>() / aligned.len() as f64).collect();
+        // keep the mean centred and, for Procrustes, at the samples' mean size
+        let c = next.iter().sum::<V3>() / next.len() as f64;
+        let f = if scale { mean_size / centroid_size(&next) } else { 1.0 };
+        next.iter_mut().for_each(|p| *p = (*p - c) * f);
+        let change = next.iter().zip(&mean).map(|(a, b)| (a - b).norm_squared()).sum::<f64>().sqrt();
+        mean = next;
+        if change < 1e-10 * mean_size * (mean.len() as f64).sqrt() {
+            break;
+        }
+    }
+    shapes.par_iter().map(|s| apply(&fit_similarity(s, &mean, None, scale), s)).collect()
+}
+
+fn apply(t: &Similarity, v: &[V3]) -> Vec<V3> {
+    v.iter().map(|p| t.apply(p)).collect()
+}
+
+impl ShapeModel {
+    /// Builds a model from conformed meshes sharing one template's topology.
+    ///
+    /// - `samples`: (name, mesh) pairs, at least 3
+    /// - returns the model with min(n - 1, `max_modes`) modes
+    pub fn build(samples: &[(String, Mesh)], opts: &BuildOptions) -> Result<ShapeModel, ModelError> {
+        if samples.len() < 3 {
+            return Err(ModelError::TooFew(samples.len()));
+        }
+        let (first_name, first) = &samples[0];
+        for (name, m) in samples {
+            if m.vertices.len() != first.vertices.len() {
+                return Err(ModelError::VertexCount {
+                    name: name.clone(),
+                    got: m.vertices.len(),
+                    first: first_name.clone(),
+                    want: first.vertices.len(),
+                });
+            }
+            if m.triangles != first.triangles {
+                return Err(ModelError::Topology { name: name.clone(), first: first_name.clone() });
+            }
+            if let Some(v) = m.vertices.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
+                return Err(ModelError::NotFinite { name: name.clone(), vertex: v });
+            }
+        }
+        let indices: Vec<u32> = match &opts.group {
+            Some(g) => first.groups.get(g).cloned().ok_or_else(|| ModelError::NoGroup {
+                group: g.clone(),
+                known: first.groups.keys().cloned().collect::<Vec<_>>().join(", "),
+            })?,
+            None => (0..first.vertices.len() as u32).collect(),
+        };
+        let mut local = vec![u32::MAX; first.vertices.len()];
+        for (k, &i) in indices.iter().enumerate() {
+            local[i as usize] = k as u32;
+        }
+        let triangles: Vec<[u32; 3]> = first
+            .triangles
+            .iter()
+            .filter(|t| t.iter().all(|&i| local[i as usize] != u32::MAX))
+            .map(|t| t.map(|i| local[i as usize]))
+            .collect();
+        let shapes: Vec<Vec<V3>> =
+            samples.iter().map(|(_, m)| indices.iter().map(|&i| m.vertices[i as usize]).collect()).collect();
+        let aligned = align_all(&shapes, opts.align);
+        let n = aligned.len();
+        let dim = indices.len() * 3;
+        let rows: Vec<Vec<f64>> = aligned.iter().map(|s| flatten(s)).collect();
+        let mean: Vec<f64> = (0..dim).map(|j| rows.iter().map(|r| r[j]).sum::<f64>() / n as f64).collect();
+        let centred: Vec<Vec<f64>> = rows.iter().map(|r| r.iter().zip(&mean).map(|(a, b)| a - b).collect()).collect();
+        // Gram matrix G = X X^T / (n - 1): n x n instead of dim x dim
+        let pairs: Vec<(usize, usize)> = (0..n).flat_map(|i| (i..n).map(move |j| (i, j))).collect();
+        let dots: Vec<f64> = pairs
+            .par_iter()
+            .map(|&(i, j)| centred[i].iter().zip(&centred[j]).map(|(a, b)| a * b).sum::<f64>() / (n - 1) as f64)
+            .collect();
+        let mut g = DMatrix::<f64>::zeros(n, n);
+        for (&(i, j), &d) in pairs.iter().zip(&dots) {
+            g[(i, j)] = d;
+            g[(j, i)] = d;
+        }
+        let eig = SymmetricEigen::new(g);
+        let mut order: Vec<usize> = (0..n).collect();
+        order.sort_by(|&a, &b| eig.eigenvalues[b].total_cmp(&eig.eigenvalues[a]));
+        let total: f64 = eig.eigenvalues.iter().map(|l| l.max(0.0)).sum();
+        let lmax = eig.eigenvalues[order[0]].max(0.0);
+        let keep: Vec<usize> = order
+            .into_iter()
+            .filter(|&k| eig.eigenvalues[k] > 1e-12 * lmax.max(1e-300))
+            .take(opts.max_modes.min(n - 1))
+            .collect();
+        let modes: Vec<Vec<f32>> = keep
+            .par_iter()
+            .map(|&k| {
+                let u = eig.eigenvectors.column(k);
+                let mut m = vec![0.0f64; dim];
+                for (i, row) in centred.iter().enumerate() {
+                    let w = u[i];
+                    m.iter_mut().zip(row).for_each(|(a, b)| *a += w * b);
+                }
+                let norm = m.iter().map(|x| x * x).sum::<f64>().sqrt().max(1e-300);
+                m.iter().map(|x| (x / norm) as f32).collect()
+            })
+            .collect();
+        let variances: Vec<f64> = keep.iter().map(|&k| eig.eigenvalues[k]).collect();
+        Ok(ShapeModel {
+            format: FORMAT.into(),
+            version: VERSION,
+            template_vertices: first.vertices.len(),
+            template_fingerprint: fingerprint(first.vertices.len(), &first.triangles),
+            align: opts.align,
+            group: opts.group.clone(),
+            indices,
+            triangles,
+            samples: samples.iter().map(|(n, _)| n.clone()).collect(),
+            mean,
+            explained: variances.iter().map(|v| v / total.max(1e-300)).collect(),
+            variances,
+            modes,
+            total_variance: total,
+        })
+    }
+
+    pub fn mean_shape(&self) -> Vec<V3> {
+        unflatten(&self.mean)
+    }
+
+    /// The shape at mode scores `b` (raw units), over the model's vertices.
+    pub fn instance(&self, b: &[f64]) -> Vec<V3> {
+        let mut x = self.mean.clone();
+        for (m, &bi) in self.modes.iter().zip(b) {
+            x.iter_mut().zip(m).for_each(|(a, &c)| *a += bi * c as f64);
+        }
+        unflatten(&x)
+    }
+
+    /// The mesh of an instance (the model's vertices and triangles).
+    pub fn instance_mesh(&self, b: &[f64]) -> Mesh {
+        Mesh::new(self.instance(b), self.triangles.clone())
+    }
+
+    /// Scores a conformed mesh of the same template: aligned to the mean as the samples
+    /// were, projected on the modes.
+    pub fn score(&self, name: &str, mesh: &Mesh) -> Result<Score, ModelError> {
+        if mesh.vertices.len() != self.template_vertices {
+            return Err(ModelError::WrongTemplate {
+                name: name.into(),
+                detail: format!("it has {} vertices, the model's template {}", mesh.vertices.len(), self.template_vertices),
+            });
+        }
+        if !mesh.triangles.is_empty() && fingerprint(mesh.vertices.len(), &mesh.triangles) != self.template_fingerprint {
+            return Err(ModelError::WrongTemplate { name: name.into(), detail: "its triangles differ".into() });
+        }
+        if let Some(v) = mesh.vertices.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
+            return Err(ModelError::NotFinite { name: name.into(), vertex: v });
+        }
+        let pts: Vec<V3> = self.indices.iter().map(|&i| mesh.vertices[i as usize]).collect();
+        let mean = self.mean_shape();
+        let aligned = match self.align {
+            Align::None => pts,
+            a => apply(&fit_similarity(&pts, &mean, None, a == Align::Procrustes), &pts),
+        };
+        let d: Vec<f64> = flatten(&aligned).iter().zip(&self.mean).map(|(a, b)| a - b).collect();
+        let scores: Vec<f64> =
+            self.modes.iter().map(|m| m.iter().zip(&d).map(|(&a, b)| a as f64 * b).sum()).collect();
+        let mut r = d.clone();
+        for (m, &b) in self.modes.iter().zip(&scores) {
+            r.iter_mut().zip(m).for_each(|(x, &c)| *x -= b * c as f64);
+        }
+        let residual = (r.iter().map(|x| x * x).sum::<f64>() / self.indices.len() as f64).sqrt();
+        let scores_sd: Vec<f64> = scores.iter().zip(&self.variances).map(|(b, v)| b / v.sqrt().max(1e-300)).collect();
+        Ok(Score {
+            name: name.into(),
+            mahalanobis: scores_sd.iter().map(|z| z * z).sum::<f64>().sqrt(),
+            scores_sd,
+            scores,
+            residual,
+        })
+    }
+
+    /// Checks the file's format, version and sizes.
+    pub fn validate(&self, path: &str) -> Result<(), ModelError> {
+        let bad = |msg: String| Err(ModelError::File { path: path.into(), msg });
+        if self.format != FORMAT {
+            return bad(format!("format is '{}', expected '{FORMAT}'", self.format));
+        }
+        if self.version != VERSION {
+            return bad(format!("version {} is not supported (this conformd reads version {VERSION})", self.version));
+        }
+        let dim = self.indices.len() * 3;
+        if self.mean.len() != dim {
+            return bad(format!("the mean has {} coordinates, expected {dim}", self.mean.len()));
+        }
+        if self.modes.len() != self.variances.len() || self.modes.iter().any(|m| m.len() != dim) {
+            return bad("mode sizes do not match the mean or the variances".into());
+        }
+        if self.indices.iter().any(|&i| i as usize >= self.template_vertices) {
+            return bad("a vertex index exceeds the template".into());
+        }
+        if !self.mean.iter().all(|x| x.is_finite()) || !self.variances.iter().all(|x| x.is_finite() && *x >= 0.0) {
+            return bad("non-finite numbers".into());
+        }
+        Ok(())
+    }
+
+    pub fn save(&self, path: &std::path::Path) -> Result<(), crate::mesh::MeshError> {
+        let json = serde_json::to_vec(self).expect("a model serialises");
+        crate::mesh::io::write_atomic(path, &json)
+    }
+
+    pub fn load(path: &std::path::Path) -> Result<ShapeModel, ModelError> {
+        let name = path.display().to_string();
+        let bytes = std::fs::read(path).map_err(|e| ModelError::File { path: name.clone(), msg: e.to_string() })?;
+        let m: ShapeModel =
+            serde_json::from_slice(&bytes).map_err(|e| ModelError::File { path: name.clone(), msg: e.to_string() })?;
+        m.validate(&name)?;
+        Ok(m)
+    }
+}
+
+/// Model quality figures for 1..=k modes (Davies et al.): compactness (cumulative
+/// variance share), generalisation (mean leave-one-out reconstruction error) and
+/// specificity (mean distance of random model instances to the nearest sample), the last
+/// two as RMS per-vertex distances.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct Quality {
+    pub modes: Vec<usize>,
+    pub compactness: Vec<f64>,
+    pub generalisation: Vec<f64>,
+    pub specificity: Vec<f64>,
+}
+
+pub fn quality(samples: &[(String, Mesh)], opts: &BuildOptions, max_k: usize, seed: u64) -> Result<Quality, ModelError> {
+    let full = ShapeModel::build(samples, opts)?;
+    let kmax = max_k.min(full.modes.len()).max(1);
+    let ks: Vec<usize> = (1..=kmax).collect();
+    let mut cum = 0.0;
+    let compactness = full.explained.iter().take(kmax).map(|e| {
+        cum += e;
+        cum
+    }).collect();
+    // generalisation: leave one out, reconstruct it with k modes
+    let loo: Vec<Vec<f64>> = (0..samples.len())
+        .into_par_iter()
+        .map(|i| {
+            let rest: Vec<(String, Mesh)> = samples.iter().enumerate().filter(|(j, _)| *j != i).map(|(_, s)| s.clone()).collect();
+            let m = match ShapeModel::build(&rest, &BuildOptions { max_modes: kmax, ..opts.clone() }) {
+                Ok(m) => m,
+                Err(_) => return vec![f64::NAN; kmax],
+            };
+            let s = m.score(&samples[i].0, &samples[i].1).expect("same template");
+            ks.iter()
+                .map(|&k| {
+                    let k = k.min(m.modes.len());
+                    let target = m.instance(&s.scores); // all modes: the aligned sample minus residual
+                    let recon = m.instance(&s.scores[..k]);
+                    let d2: f64 = target.iter().zip(&recon).map(|(a, b)| (a - b).norm_squared()).sum();
+                    (d2 / recon.len() as f64 + s.residual * s.residual).sqrt()
+                })
+                .collect()
+        })
+        .collect();
+    let generalisation = (0..kmax).map(|k| loo.iter().map(|l| l[k]).sum::<f64>() / loo.len() as f64).collect();
+    // specificity: random instances against the aligned training shapes
+    let train: Vec<Vec<V3>> = samples
+        .iter()
+        .map(|(n, m)| {
+            let s = full.score(n, m).expect("same template");
+            let recon = full.instance(&s.scores);
+            recon
+        })
+        .collect();
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let specificity = ks
+        .iter()
+        .map(|&k| {
+            let draws = 50;
+            (0..draws)
+                .map(|_| {
+                    let b: Vec<f64> = full.variances[..k]
+                        .iter()
+                        .map(|v| Normal::new(0.0, v.sqrt()).expect("finite").sample(&mut rng))
+                        .collect();
+                    let x = full.instance(&b);
+                    train
+                        .iter()
+                        .map(|t| (t.iter().zip(&x).map(|(a, b)| (a - b).norm_squared()).sum::<f64>() / x.len() as f64).sqrt())
+                        .fold(f64::INFINITY, f64::min)
+                })
+                .sum::<f64>()
+                / draws as f64
+        })
+        .collect();
+    Ok(Quality { modes: ks, compactness, generalisation, specificity })
+}

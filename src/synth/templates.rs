@@ -1,0 +1,243 @@
+//! Generic templates: a pig and a human body, built procedurally from articulated
+//! skeletons, with named landmarks at anatomical places and named vertex groups. Both pose
+//! (`swing=12,nod=-8,...`, degrees per joint group) and reshape (`length=1.1,girth=0.95`)
+//! with the vertex order unchanged, so a posed or reshaped subject is its own ground truth.
+
+use super::figure::{self, Figure, Pose, Skeleton};
+use crate::mesh::{Mesh, V3};
+use std::collections::BTreeMap;
+
+/// Which generic template.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Kind {
+    Pig,
+    Body,
+}
+
+impl std::str::FromStr for Kind {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "pig" => Ok(Kind::Pig),
+            "body" => Ok(Kind::Body),
+            _ => Err(format!("unknown template '{s}' (expected 'pig' or 'body')")),
+        }
+    }
+}
+
+/// A pig standing in a crate, facing +x, z up, about 1.6 units long (metres).
+pub fn pig() -> Skeleton {
+    let mut s = Skeleton { bones: vec![], blend: 0.04, landmarks: vec![] };
+    let v = V3::new;
+    s.add("rump", None, v(-0.45, 0., 0.55), v(-0.05, 0., 0.56), (0.20, 0.22), "torso");
+    s.add("chest", Some("rump"), v(-0.05, 0., 0.56), v(0.33, 0., 0.55), (0.22, 0.19), "torso");
+    s.add("neck", Some("chest"), v(0.33, 0., 0.56), v(0.48, 0., 0.56), (0.15, 0.13), "head");
+    s.add("head", Some("neck"), v(0.48, 0., 0.56), v(0.66, 0., 0.51), (0.12, 0.09), "head");
+    s.add("snout", Some("head"), v(0.66, 0., 0.51), v(0.80, 0., 0.47), (0.07, 0.06), "snout");
+    s.add("tail", Some("rump"), v(-0.62, 0., 0.60), v(-0.73, 0., 0.50), (0.03, 0.02), "tail");
+    for (side, y) in [("l", 1.0), ("r", -1.0)] {
+        let n = |b: &str| format!("{b}_{side}");
+        s.add(&n("ear"), Some("head"), v(0.56, 0.07 * y, 0.64), v(0.60, 0.15 * y, 0.74), (0.04, 0.025), "ears");
+        for (leg, x) in [("f", 0.26), ("h", -0.36)] {
+            let parent = if leg == "f" { "chest" } else { "rump" };
+            let up = format!("leg_{leg}{side}");
+            let low = format!("shank_{leg}{side}");
+            let hoof = format!("hoof_{leg}{side}");
+            s.add(&up, Some(parent), v(x, 0.11 * y, 0.46), v(x + 0.02, 0.11 * y, 0.24), (0.075, 0.05), "legs");
+            s.add(&low, Some(&up), v(x + 0.02, 0.11 * y, 0.24), v(x, 0.11 * y, 0.07), (0.05, 0.04), "legs");
+            s.add(&hoof, Some(&low), v(x, 0.11 * y, 0.07), v(x + 0.04, 0.11 * y, 0.03), (0.042, 0.035), "hooves");
+            s.landmarks.push((format!("hoof_{leg}{side}"), v(x + 0.07, 0.11 * y, 0.02)));
+        }
+        s.landmarks.extend([
+            (n("ear_tip"), v(0.61, 0.17 * y, 0.77)),
+            (n("shoulder"), v(0.24, 0.22 * y, 0.50)),
+            (n("hip"), v(-0.36, 0.23 * y, 0.52)),
+            (n("eye"), v(0.62, 0.08 * y, 0.58)),
+        ]);
+    }
+    s.landmarks.extend([
+        ("snout_tip".into(), v(0.87, 0., 0.47)),
+        ("tail_base".into(), v(-0.64, 0., 0.64)),
+        ("withers".into(), v(0.25, 0., 0.75)),
+        ("rump_top".into(), v(-0.40, 0., 0.77)),
+        ("belly".into(), v(0.05, 0., 0.33)),
+        ("chin".into(), v(0.70, 0., 0.40)),
+    ]);
+    s
+}
+
+/// A standing human body, facing +x, z up, about 1.8 units tall (metres): the figure of
+/// `figure::humanoid` with wrists and ankles marked too.
+pub fn body() -> Skeleton {
+    let mut s = figure::humanoid();
+    for (side, y) in [("l", 1.0), ("r", -1.0)] {
+        s.landmarks.extend([
+            (format!("wrist_{side}"), V3::new(0.07, 0.58 * y, 1.06 - 0.04)),
+            (format!("ankle_{side}"), V3::new(0.0, (0.12 + 0.045) * y, 0.09)),
+        ]);
+    }
+    s
+}
+
+pub fn skeleton(kind: Kind) -> Skeleton {
+    match kind {
+        Kind::Pig => pig(),
+        Kind::Body => body(),
+    }
+}
+
+/// Builds a template of about `vertices` vertices (2,000 to 100,000).
+pub fn build(kind: Kind, vertices: usize) -> Figure {
+    figure::build(&skeleton(kind), vertices.clamp(500, 200_000))
+}
+
+/// The pose parameters a template understands: name -> (bone, axis, sign). A parameter
+/// of d degrees rotates the bone about its joint by sign * d around the axis.
+pub fn pose_parameters(kind: Kind) -> Vec<(&'static str, &'static str, V3, f64)> {
+    let (x, y, z) = (V3::x(), V3::y(), V3::z());
+    match kind {
+        Kind::Pig => vec![
+            ("swing", "chest", z, 1.0),
+            ("nod", "neck", y, 1.0),
+            ("twist", "chest", x, 1.0),
+            ("head_turn", "neck", z, 1.0),
+            ("tail", "tail", y, 1.0),
+            ("leg_fl", "leg_fl", y, 1.0),
+            ("leg_fr", "leg_fr", y, 1.0),
+            ("leg_hl", "leg_hl", y, 1.0),
+            ("leg_hr", "leg_hr", y, 1.0),
+            ("ear_l", "ear_l", x, 1.0),
+            ("ear_r", "ear_r", x, -1.0),
+        ],
+        Kind::Body => vec![
+            ("head_turn", "neck", z, 1.0),
+            ("nod", "neck", y, 1.0),
+            ("twist", "chest", z, 1.0),
+            ("bend", "chest", y, 1.0),
+            ("arm_l", "upper_arm_l", x, 1.0),
+            ("arm_r", "upper_arm_r", x, -1.0),
+            ("elbow_l", "forearm_l", y, -1.0),
+            ("elbow_r", "forearm_r", y, -1.0),
+            ("hip_l", "thigh_l", y, -1.0),
+            ("hip_r", "thigh_r", y, -1.0),
+            ("knee_l", "shin_l", y, 1.0),
+            ("knee_r", "shin_r", y, 1.0),
+        ],
+    }
+}
+
+/// Shape parameters: name and what they change.
+pub fn shape_parameters(kind: Kind) -> Vec<&'static str> {
+    match kind {
+        Kind::Pig => vec!["length", "girth", "leg_length", "head_size"],
+        Kind::Body => vec!["height", "girth", "arm_length", "leg_length", "shoulders"],
+    }
+}
+
+/// Parses `name=value,name=value` (the CLI's `--pose` and `--shape`).
+pub fn parse_parameters(text: &str, known: &[&str], what: &str) -> Result<BTreeMap<String, f64>, String> {
+    let mut out = BTreeMap::new();
+    for part in text.split(',').map(str::trim).filter(|p| !p.is_empty()) {
+        let (k, v) = part.split_once('=').ok_or_else(|| format!("{what} '{part}': expected name=value"))?;
+        let (k, v) = (k.trim(), v.trim());
+        if !known.contains(&k) {
+            return Err(format!("unknown {what} parameter '{k}' (known: {})", known.join(", ")));
+        }
+        let x: f64 = v.parse().ok().filter(|x: &f64| x.is_finite()).ok_or_else(|| format!("{what} '{k}': '{v}' is not a number"))?;
+        out.insert(k.to_string(), x);
+    }
+    Ok(out)
+}
+
+/// A pose from named parameters (degrees).
+pub fn pose(kind: Kind, params: &BTreeMap<String, f64>) -> Pose {
+    let table = pose_parameters(kind);
+    let joints = params
+        .iter()
+        .filter_map(|(k, &deg)| {
+            table.iter().find(|t| t.0 == k).map(|&(_, bone, axis, sign)| (bone.to_string(), axis, sign * deg))
+        })
+        .collect();
+    Pose { joints, scale: 1.0, ..Default::default() }
+}
+
+/// The displacement field of one shape parameter: #V vectors; `rest + (p - 1) * field`
+/// is the template with that parameter at factor p. Fields are linear in the parameter,
+/// so a population of reshaped templates spans exactly their span.
+pub fn shape_field(fig: &Figure, kind: Kind, name: &str) -> Option<Vec<V3>> {
+    let bones = &fig.skeleton.bones;
+    let v = &fig.mesh.vertices;
+    let (lo, hi) = fig.mesh.bounding_box()?;
+    let centre = (lo + hi) / 2.0;
+    // offset of each vertex from the axis of bone b, and its position along it (0..1)
+    let axis = |b: usize, p: &V3| {
+        let (a, t) = (bones[b].head, bones[b].tail);
+        let ab = t - a;
+        let s = ((p - a).dot(&ab) / ab.norm_squared()).clamp(0.0, 1.0);
+        (p - (a + ab * s), s, ab)
+    };
+    let of_group = |i: usize, groups: &[&str]| -> f64 {
+        fig.weights[i].iter().filter(|(b, _)| groups.contains(&bones[*b as usize].group.as_str())).map(|x| x.1).sum()
+    };
+    let by_bones = |i: usize, names: &[&str], f: &dyn Fn(usize) -> V3| -> V3 {
+        fig.weights[i]
+            .iter()
+            .filter(|(b, _)| names.iter().any(|n| bones[*b as usize].name.starts_with(n)))
+            .map(|&(b, w)| f(b as usize) * w)
+            .sum()
+    };
+    let field: Vec<V3> = (0..v.len())
+        .map(|i| {
+            let p = v[i];
+            match (kind, name) {
+                (Kind::Pig, "length") => V3::new(p.x - centre.x, 0.0, 0.0),
+                (Kind::Body, "height") => V3::new(0.0, 0.0, p.z - lo.z),
+                (_, "girth") => by_bones(i, &["rump", "chest", "pelvis"], &|b| axis(b, &p).0),
+                // longer legs: everything above the hip joints rises, the legs stretch
+                (Kind::Pig, "leg_length") => V3::new(0.0, 0.0, p.z.min(0.46) - 0.03),
+                (Kind::Body, "leg_length") => V3::new(0.0, 0.0, p.z.min(0.90)),
+                (Kind::Pig, "head_size") => by_bones(i, &["head", "snout", "neck"], &|b| {
+                    let (off, _, _) = axis(b, &p);
+                    off + (p - bones[b].head) * 0.3
+                }),
+                (Kind::Body, "arm_length") => by_bones(i, &["upper_arm", "forearm", "hand"], &|_| {
+                    let shoulder = V3::new(0.0, 0.22 * p.y.signum(), 1.36);
+                    (p - shoulder) * 0.5
+                }),
+                // broader shoulders: the upper torso widens (not the head) and the arms
+                // move out with it
+                (Kind::Body, "shoulders") => {
+                    let torso = of_group(i, &["torso"]);
+                    let arms = of_group(i, &["arms", "hands"]);
+                    let rise = ((p.z - 1.1) / 0.3).clamp(0.0, 1.0);
+                    V3::new(0.0, p.y * rise * torso + 0.2 * p.y.signum() * arms, 0.0)
+                }
+                _ => return None,
+            }
+            .into()
+        })
+        .collect::<Option<Vec<V3>>>()?;
+    Some(field)
+}
+
+/// Rest positions reshaped by named factors (1 = unchanged).
+pub fn reshape(fig: &Figure, kind: Kind, factors: &BTreeMap<String, f64>) -> Result<Vec<V3>, String> {
+    let mut out = fig.mesh.vertices.clone();
+    for (name, &f) in factors {
+        let field = shape_field(fig, kind, name).ok_or_else(|| format!("unknown shape parameter '{name}'"))?;
+        for (o, d) in out.iter_mut().zip(field) {
+            *o += d * (f - 1.0);
+        }
+    }
+    Ok(out)
+}
+
+/// A template reshaped, then posed: a subject with the template's vertex order.
+pub fn subject(fig: &Figure, kind: Kind, shape: &BTreeMap<String, f64>, pose: &Pose) -> Result<Mesh, String> {
+    let mut reshaped = fig.clone();
+    reshaped.mesh.vertices = reshape(fig, kind, shape)?;
+    let mut m = fig.mesh.clone();
+    m.vertices = reshaped.pose(pose);
+    Ok(m)
+}
