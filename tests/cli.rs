@@ -287,3 +287,39 @@ fn example_config_documents_the_defaults() {
         as_json(&conformd::conform::ConformOptions::default())
     );
 }
+
+#[test]
+fn template_model_modes_and_score() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let out = conformd(&["template", "pig", "--vertices", "2000", "--out", "pig.obj"], d);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(d.join("pig.landmarks").exists());
+    let back = conformd::mesh::read_mesh(&d.join("pig.obj")).unwrap();
+    assert!(back.groups.contains_key("ears") && back.groups.contains_key("torso"), "groups survive the OBJ file");
+    let mut names = Vec::new();
+    for (i, pose) in ["swing=10", "swing=-10,nod=5", "nod=-8", "twist=6", "swing=4,twist=-5", "nod=9,twist=2"].iter().enumerate() {
+        let name = format!("p{i}.ply");
+        let out = conformd(&["template", "pig", "--vertices", "2000", "--pose", pose, "--out", &name], d);
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        names.push(name);
+    }
+    let mut args = vec!["model", "build", "--out", "m.json", "--quality"];
+    args.extend(names.iter().map(String::as_str));
+    let out = conformd(&args, d);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success() && text.contains("mode  1") && text.contains("compactness"), "{text}{}", String::from_utf8_lossy(&out.stderr));
+    let out = conformd(&["model", "modes", "--model", "m.json", "--modes", "2", "--out", "modes"], d);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let sheet = image::open(d.join("modes/modes.png")).unwrap();
+    assert_eq!((sheet.width(), sheet.height()), (3 * 360, 2 * 270), "rows are modes, columns -, mean, +");
+    assert!(d.join("modes/mode1_plus3sd.ply").exists() && d.join("modes/mean.ply").exists());
+    let out = conformd(&["model", "score", "--model", "m.json", "p0.ply", "pig.obj"], d);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success() && text.contains("p0.ply: scores") && text.contains("mahalanobis"), "{text}");
+    let out = conformd(&["template", "body", "--vertices", "2000", "--out", "body.ply"], d);
+    assert!(out.status.success());
+    let out = conformd(&["model", "score", "--model", "m.json", "body.ply"], d);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("body.ply") && err.contains("not conformed from this model's template"), "{err}");
+}

@@ -38,6 +38,18 @@ fn meshes_and_point_clouds_round_trip() {
 }
 
 #[test]
+fn obj_keeps_triangle_order_and_groups() {
+    let fig = conformd::synth::templates::build(conformd::synth::templates::Kind::Pig, 2000);
+    let back = conformd::mesh::io::read_obj_bytes("t.obj", conformd::mesh::io::obj_bytes(&fig.mesh).as_bytes()).unwrap();
+    assert_eq!(back.triangles, fig.mesh.triangles, "triangle order is part of the template");
+    assert_eq!(back.vertices, fig.mesh.vertices);
+    for (g, vs) in &fig.mesh.groups {
+        let got = &back.groups[g];
+        assert!(vs.iter().filter(|v| got.binary_search(v).is_ok()).count() * 10 >= vs.len() * 9, "group {g} kept");
+    }
+}
+
+#[test]
 fn synthetic_solids_are_watertight() {
     assert!(topology::report(&icosphere(4)).watertight);
     let b = tessellated_box(V3::new(2., 1., 0.5), 7);

@@ -751,8 +751,9 @@ pub fn read_obj_bytes(path: &str, bytes: &[u8]) -> Result<Mesh, MeshError> {
 }
 
 /// Serialises a mesh as OBJ text (vertices, normals if present, triangles, 1-based).
-/// Vertex groups are written as `g` sections: a triangle goes to the first group holding
-/// all three of its vertices (reading the file back gives each group the vertices of its
+/// Vertex groups are written as `g` lines: a triangle belongs to the first group holding
+/// all three of its vertices, and a `g` line starts wherever that changes, so triangles
+/// keep their order (reading the file back gives each group the vertices of its
 /// triangles, so groups gain the vertices along their borders).
 pub fn obj_bytes(mesh: &Mesh) -> String {
     let mut s = String::with_capacity(mesh.vertices.len() * 40 + mesh.triangles.len() * 24);
@@ -772,17 +773,19 @@ pub fn obj_bytes(mesh: &Mesh) -> String {
     let sets: Vec<(&String, std::collections::HashSet<u32>)> =
         mesh.groups.iter().map(|(k, v)| (k, v.iter().copied().collect())).collect();
     let group_of = |t: &[u32; 3]| sets.iter().position(|(_, set)| t.iter().all(|i| set.contains(i)));
-    let mut order: Vec<(Option<usize>, usize)> = mesh.triangles.iter().enumerate().map(|(i, t)| (group_of(t), i)).collect();
-    order.sort_by_key(|&(g, i)| (g.map_or(0, |g| g + 1), i));
     let mut current = None;
-    for (g, i) in order {
+    for t in &mesh.triangles {
+        let g = if sets.is_empty() { None } else { group_of(t) };
         if g != current {
-            if let Some(g) = g {
-                let _ = writeln!(s, "g {}", sets[g].0);
+            match g {
+                Some(g) => {
+                    let _ = writeln!(s, "g {}", sets[g].0);
+                }
+                None => s.push_str("g\n"),
             }
             current = g;
         }
-        let [a, b, c] = mesh.triangles[i].map(|i| i + 1);
+        let [a, b, c] = t.map(|i| i + 1);
         if normals.is_some() {
             let _ = writeln!(s, "f {a}//{a} {b}//{b} {c}//{c}");
         } else {

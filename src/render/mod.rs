@@ -211,7 +211,8 @@ fn draw_colour_bar(img: &mut RgbImage, x0: u32, w: u32, h: u32, min: f64, max: f
     let (top, bottom) = (30u32, h - 30);
     let (bx0, bx1) = (x0 + 10, x0 + 30.min(w - 4));
     for y in top..bottom {
-        let t = 1.0 - (y - top) as f64 / (bottom - top) as f64;
+        // the top row shows the maximum, the bottom row the minimum, exactly
+        let t = 1.0 - (y - top) as f64 / (bottom - top - 1) as f64;
         let c = colour_map(t);
         for x in bx0..bx1 {
             img.put_pixel(x, y, Rgb(c));

@@ -293,6 +293,33 @@ pub fn articulated(spec: &ArticulatedSpec) -> Case {
     }
 }
 
+/// Scans a subject as a station would: cameras on a ring at the given azimuths (degrees,
+/// 0 = +x) and one overhead; triangles none of them sees are holes. Returns the point
+/// cloud (`points` samples, normal noise `noise` relative to the diagonal) and, per
+/// vertex, whether its place went unseen.
+pub fn scan_subject(subject: &Mesh, azimuths: &[f64], points: usize, noise: f64, seed: u64) -> (Mesh, Vec<bool>) {
+    let (lo, hi) = subject.bounding_box().expect("non-empty subject");
+    let centre = (lo + hi) / 2.0;
+    let diag = (hi - lo).norm();
+    let r = 1.4 * diag;
+    let mut views: Vec<V3> = azimuths
+        .iter()
+        .flat_map(|&a| scanner::ring_viewpoints(centre, r, 0.1 * diag, a, 0.0, 1))
+        .collect();
+    views.push(centre + V3::new(-0.1 * diag, 0.0, 1.2 * diag));
+    let seen = scanner::visible_triangles(subject, &views);
+    let scan = scanner::sample_points(subject, &seen, points, noise * diag, seed);
+    let mut in_hole = vec![true; subject.vertices.len()];
+    for (t, tri) in subject.triangles.iter().enumerate() {
+        if seen[t] {
+            for &i in tri {
+                in_hole[i as usize] = false;
+            }
+        }
+    }
+    (scan, in_hole)
+}
+
 /// Correspondence error figures of a result against the truth, relative to the truth's
 /// bounding-box diagonal.
 #[derive(Debug, Clone, Copy, serde::Serialize)]
