@@ -26,11 +26,11 @@ deps:
 build: deps
 	$(CARGO) build --locked --release
 
-# Logic tests in a debug build; the heavy known-answer tests in release (a debug build
-# lists them as ignored).
+# Every test in a debug build (debug assertions on; the heavy known-answer tests are
+# listed as ignored there), then every test in release, where the heavy ones run.
 test: deps
 	$(CARGO) test --locked
-	$(CARGO) test --locked --release --test articulated --test paper_cases
+	$(CARGO) test --locked --release
 
 test-fast: deps
 	$(CARGO) test --locked
@@ -40,6 +40,7 @@ demo: deps
 
 bench: deps
 	$(CARGO) bench --locked --bench conform
+	$(CARGO) bench --locked --bench model
 
 clean:
 	$(CARGO) clean

@@ -193,6 +193,24 @@ pub fn demo(
                 .expect("serialises")
                 .as_bytes(),
         )?;
+        // a picture of the result, coloured by its distance to the true (whole) box
+        let size = crate::mesh::V3::from(cases::BOX_SIZE);
+        let values: Vec<f64> =
+            r.mesh.vertices.iter().map(|p| crate::synth::distance_to_box_surface(p, &size)).collect();
+        let max = values.iter().cloned().fold(0.0, f64::max);
+        let views = vec![
+            crate::render::View { azimuth: 30.0, elevation: 30.0 },
+            crate::render::View { azimuth: 150.0, elevation: -20.0 },
+        ];
+        let img = crate::render::render(
+            &r.mesh,
+            &crate::render::Colouring::Values { values, min: 0.0, max, unit: "TO BOX".into() },
+            &crate::render::RenderOptions { views, ..Default::default() },
+        );
+        let mut png = Vec::new();
+        img.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
+            .expect("encoding a PNG in memory");
+        put(&format!("preview-{name}.png"), &png)?;
         let f = cases::box_figures(&r.mesh);
         methods.push(DemoFigures {
             method,
