@@ -11,6 +11,8 @@ use std::path::{Path, PathBuf};
 #[derive(Debug, thiserror::Error)]
 pub enum JobError {
     #[error(transparent)]
+    Groups(#[from] mesh::groups::GroupsError),
+    #[error(transparent)]
     Mesh(#[from] mesh::MeshError),
     #[error(transparent)]
     Landmarks(#[from] mesh::LandmarkError),
@@ -39,8 +41,11 @@ pub fn load_conform_options(path: &Path) -> Result<ConformOptions, JobError> {
         path: name.clone(),
         msg: e.to_string(),
     })?;
+    // a station config holds sections; a conform.toml holds the options themselves
+    const STATION_SECTIONS: [&str; 6] = ["template", "station", "rig", "capture", "daemon", "model"];
     let table = match table.get("conform") {
         Some(toml::Value::Table(t)) => t.clone(),
+        _ if STATION_SECTIONS.iter().any(|k| table.contains_key(*k)) => toml::Table::new(),
         _ => table,
     };
     let opts: ConformOptions = table
@@ -56,10 +61,67 @@ pub fn load_conform_options(path: &Path) -> Result<ConformOptions, JobError> {
     Ok(opts)
 }
 
+/// Where a station's template comes from: a generic one (`pig`, `body`) built at a
+/// resolution, or any user mesh with its landmark file and optional groups file (the
+/// paper: "one of the 3D shape samples can serve as a generic mesh directly").
+/// In a config: `[template]` with `generic = "pig"` and `vertices = 10000`, or
+/// `mesh = "..."`, `landmarks = "..."`, `groups = "..."`.
+#[derive(Debug, Clone, Default, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct TemplateSource {
+    pub generic: Option<crate::synth::templates::Kind>,
+    pub vertices: Option<usize>,
+    pub mesh: Option<PathBuf>,
+    pub landmarks: Option<PathBuf>,
+    pub groups: Option<PathBuf>,
+}
+
+impl TemplateSource {
+    /// Reads the `[template]` table of a config file; relative paths are taken from the
+    /// config file's folder.
+    pub fn from_config(path: &Path) -> Result<Option<TemplateSource>, JobError> {
+        let name = path.display().to_string();
+        let text = std::fs::read_to_string(path).map_err(|source| JobError::Io { path: name.clone(), source })?;
+        let table: toml::Table = toml::from_str(&text).map_err(|e| JobError::Config { path: name.clone(), msg: e.to_string() })?;
+        let Some(t) = table.get("template") else { return Ok(None) };
+        let mut src: TemplateSource = t
+            .clone()
+            .try_into()
+            .map_err(|e: toml::de::Error| JobError::Config { path: name.clone(), msg: format!("[template]: {e}") })?;
+        let base = path.parent().unwrap_or(Path::new("."));
+        for p in [&mut src.mesh, &mut src.landmarks, &mut src.groups].into_iter().flatten() {
+            if p.is_relative() {
+                *p = base.join(&*p);
+            }
+        }
+        Ok(Some(src))
+    }
+
+    /// The template mesh (with groups) and its landmarks, if it has any.
+    pub fn load(&self) -> Result<(Mesh, Option<Vec<mesh::Landmark>>), JobError> {
+        match (&self.generic, &self.mesh) {
+            (Some(kind), None) => {
+                let fig = crate::synth::templates::build(*kind, self.vertices.unwrap_or(10_000));
+                let lms = fig.landmarks();
+                Ok((fig.mesh, Some(lms)))
+            }
+            (None, Some(path)) => {
+                let mut m = mesh::read_mesh(path)?;
+                if let Some(g) = &self.groups {
+                    mesh::groups::read_into(g, &mut m)?;
+                }
+                let lms = self.landmarks.as_ref().map(|p| mesh::read_landmarks(p)).transpose()?;
+                Ok((m, lms))
+            }
+            _ => Err(JobError::Usage("[template] needs either generic = \"pig\" or \"body\", or mesh = \"FILE\" (not both)".into())),
+        }
+    }
+}
+
 /// The files of one conformation.
 #[derive(Debug, Clone)]
 pub struct ConformFiles {
-    pub template: PathBuf,
+    pub template: TemplateSource,
     pub scan: PathBuf,
     pub template_landmarks: Option<PathBuf>,
     pub scan_landmarks: Option<PathBuf>,
@@ -90,14 +152,18 @@ pub fn conform_files(
             files.out.display()
         )));
     }
-    let template = mesh::read_mesh(&files.template)?;
+    let (template, own_landmarks) = files.template.load()?;
     let scan = mesh::read_mesh(&files.scan)?;
-    let landmarks = match (&files.template_landmarks, &files.scan_landmarks) {
-        (Some(t), Some(s)) => Some((mesh::read_landmarks(t)?, mesh::read_landmarks(s)?)),
-        (None, None) => None,
-        _ => {
+    let template_landmarks = match &files.template_landmarks {
+        Some(t) => Some(mesh::read_landmarks(t)?),
+        None => own_landmarks,
+    };
+    let landmarks = match (template_landmarks, &files.scan_landmarks) {
+        (Some(t), Some(s)) => Some((t, mesh::read_landmarks(s)?)),
+        (_, None) => None,
+        (None, Some(_)) => {
             return Err(JobError::Usage(
-                "landmarks need both --template-landmarks and --scan-landmarks (or neither, for automatic alignment)".into(),
+                "--scan-landmarks needs template landmarks too (--template-landmarks, or the template's own)".into(),
             ));
         }
     };

@@ -23,9 +23,13 @@ struct Cli {
 enum Cmd {
     /// Conform a template mesh onto a scan (Ju et al. 2004, or conformd's default method).
     Conform {
-        /// template mesh (.obj, .ply or .off); its vertex order and triangles are kept
+        /// template mesh (.obj, .ply or .off), or `pig` / `body` for a generic template
+        /// (10,000 vertices, with its own landmarks); without it the config's [template]
         #[arg(long)]
-        template: PathBuf,
+        template: Option<String>,
+        /// vertex groups of a template mesh: lines `name i j k ...`
+        #[arg(long)]
+        template_groups: Option<PathBuf>,
         /// scan: a mesh with holes or a point cloud (.ply, .obj or .off)
         #[arg(long)]
         scan: PathBuf,
@@ -167,6 +171,7 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
     match cli.cmd {
         Cmd::Conform {
             template,
+            template_groups,
             scan,
             template_landmarks,
             scan_landmarks,
@@ -185,6 +190,18 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
                 }
                 opts.method = m;
             }
+            let template = match (template, &config) {
+                (Some(t), _) => match t.parse::<conformd::synth::templates::Kind>() {
+                    Ok(kind) if !std::path::Path::new(&t).exists() => {
+                        jobs::TemplateSource { generic: Some(kind), ..Default::default() }
+                    }
+                    _ => jobs::TemplateSource { mesh: Some(t.into()), groups: template_groups, ..Default::default() },
+                },
+                (None, Some(c)) => jobs::TemplateSource::from_config(c)?.ok_or_else(|| {
+                    jobs::JobError::Usage(format!("no --template, and {} has no [template] table", c.display()))
+                })?,
+                (None, None) => return Err(jobs::JobError::Usage("--template is needed (or a --config with a [template] table)".into())),
+            };
             let files = jobs::ConformFiles {
                 template,
                 scan,

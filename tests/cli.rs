@@ -208,25 +208,16 @@ fn bad_inputs_give_one_clear_line() {
         "{err}"
     );
 
+    let out = conformd(&["conform", "--scan", "scan.ply", "--out", "x.ply"], dir.path());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("--template is needed"), "{err}");
+    std::fs::write(dir.path().join("g.txt"), "ears 1 2 999999\n").unwrap();
     let out = conformd(
-        &[
-            "conform",
-            "--template",
-            "template.obj",
-            "--scan",
-            "scan.ply",
-            "--template-landmarks",
-            "t.lm",
-            "--out",
-            "x.ply",
-        ],
+        &["conform", "--template", "template.obj", "--template-groups", "g.txt", "--scan", "scan.ply", "--out", "x.ply"],
         dir.path(),
     );
     let err = String::from_utf8_lossy(&out.stderr);
-    assert!(
-        !out.status.success() && err.contains("--scan-landmarks"),
-        "{err}"
-    );
+    assert!(!out.status.success() && err.contains("g.txt: line 1") && err.contains("999999"), "{err}");
 }
 
 #[test]
@@ -278,6 +269,39 @@ fn config_file_and_info() {
 }
 
 #[test]
+fn a_user_mesh_or_a_generic_template_named_in_a_config() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    // a posed pig as the scan, the generic pig (with its own landmarks) as the template
+    let out = conformd(&["template", "pig", "--vertices", "3000", "--pose", "swing=10", "--out", "subject.ply"], d);
+    assert!(out.status.success());
+    let subject = conformd::mesh::read_mesh(&d.join("subject.ply")).unwrap();
+    let lms = conformd::mesh::read_landmarks(&d.join("subject.landmarks")).unwrap();
+    let pts: Vec<conformd::mesh::Landmark> = lms.iter().map(|l| match l.pos {
+        conformd::mesh::LandmarkPos::Vertex(v) => conformd::mesh::Landmark { name: l.name.clone(), pos: conformd::mesh::LandmarkPos::Point(subject.vertices[v as usize]) },
+        p => conformd::mesh::Landmark { name: l.name.clone(), pos: p },
+    }).collect();
+    std::fs::write(d.join("scan.landmarks"), landmarks_text(&pts)).unwrap();
+    std::fs::write(d.join("station.toml"), "[template]\ngeneric = \"pig\"\nvertices = 3000\n[conform]\nmax_iterations = 8\n").unwrap();
+    let out = conformd(&["conform", "--config", "station.toml", "--scan", "subject.ply", "--scan-landmarks", "scan.landmarks", "--out", "c.ply"], d);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let c = conformd::mesh::read_mesh(&d.join("c.ply")).unwrap();
+    assert_eq!(c.triangles, subject.triangles, "the generic pig of the config is the subject's template");
+    let diag = subject.diagonal();
+    let err: f64 = c.vertices.iter().zip(&subject.vertices).map(|(a, b)| (a - b).norm()).sum::<f64>() / c.vertices.len() as f64 / diag;
+    assert!(err < 0.01, "correspondence error {:.3}%", err * 100.0);
+    // a user mesh as the template: one of the samples serves as the generic mesh
+    std::fs::write(d.join("groups.txt"), "front 0 1 2 3\n").unwrap();
+    std::fs::write(d.join("user.toml"), "[template]\nmesh = \"subject.ply\"\nlandmarks = \"subject.landmarks\"\ngroups = \"groups.txt\"\n[conform]\nmax_iterations = 3\n[conform.stiffness]\nfront = 2.0\n").unwrap();
+    let out = conformd(&["conform", "--config", "user.toml", "--scan", "subject.ply", "--scan-landmarks", "scan.landmarks", "--out", "u.ply"], d);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    std::fs::write(d.join("bad.toml"), "[template]\ngeneric = \"cow\"\n").unwrap();
+    let out = conformd(&["conform", "--config", "bad.toml", "--scan", "subject.ply", "--out", "x.ply"], d);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("bad.toml") && err.contains("cow"), "{err}");
+}
+
+#[test]
 fn example_config_documents_the_defaults() {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/conform.example.toml");
     let loaded = conformd::jobs::load_conform_options(&path).expect("the example config loads");
@@ -322,4 +346,14 @@ fn template_model_modes_and_score() {
     let out = conformd(&["model", "score", "--model", "m.json", "body.ply"], d);
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && err.contains("body.ply") && err.contains("not conformed from this model's template"), "{err}");
+}
+
+#[test]
+fn example_station_config_loads() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/station.example.toml");
+    let opts = conformd::jobs::load_conform_options(&path).expect("options load");
+    assert_eq!(opts.stiffness.get("ears"), Some(&5.0));
+    let src = conformd::jobs::TemplateSource::from_config(&path).unwrap().expect("has [template]");
+    assert_eq!(src.generic, Some(conformd::synth::templates::Kind::Pig));
+    assert_eq!(src.vertices, Some(10_000));
 }
