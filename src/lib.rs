@@ -8,4 +8,5 @@ pub mod jobs;
 pub mod mesh;
 pub mod model;
 pub mod render;
+pub mod rig;
 pub mod synth;

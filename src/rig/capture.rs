@@ -1,0 +1,372 @@
+//! Capture sessions: arm every camera, fire (the trigger box or a software trigger),
+//! collect one frame per camera within a window, check that the sensor timestamps agree,
+//! and write the capture set atomically: `captures/.<id>.partial/`, every file synced,
+//! `manifest.json` last, then renamed to `captures/<id>/`. A failure removes the partial
+//! set (or moves it to `captures/failed/<id>/` with the reason); there is never a set
+//! without a manifest under `captures/`.
+
+use super::camera::{Camera, CameraError, CameraSettings, Frame};
+use super::trigger::{TriggerBox, TriggerError, TriggerLink};
+use std::io::{Read, Write};
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+
+/// Fires the cameras.
+pub trait Trigger {
+    fn kind(&self) -> &'static str;
+    fn arm(&mut self, seq: u32) -> Result<(), TriggerError>;
+    /// Fires; returns the box's timestamp of the pulse when there is a box.
+    fn fire(&mut self, seq: u32, exposure_us: u32) -> Result<Option<u64>, TriggerError>;
+}
+
+/// No box: cameras free-run and the next frame of each is taken.
+pub struct SoftwareTrigger;
+
+impl Trigger for SoftwareTrigger {
+    fn kind(&self) -> &'static str {
+        "software"
+    }
+    fn arm(&mut self, _: u32) -> Result<(), TriggerError> {
+        Ok(())
+    }
+    fn fire(&mut self, _: u32, _: u32) -> Result<Option<u64>, TriggerError> {
+        Ok(None)
+    }
+}
+
+impl<P: Read + Write> Trigger for TriggerBox<P> {
+    fn kind(&self) -> &'static str {
+        "serial"
+    }
+    fn arm(&mut self, seq: u32) -> Result<(), TriggerError> {
+        TriggerBox::arm(self, seq)
+    }
+    fn fire(&mut self, seq: u32, exposure_us: u32) -> Result<Option<u64>, TriggerError> {
+        TriggerBox::fire(self, seq, exposure_us).map(Some)
+    }
+}
+
+impl Trigger for TriggerLink {
+    fn kind(&self) -> &'static str {
+        "serial"
+    }
+    fn arm(&mut self, seq: u32) -> Result<(), TriggerError> {
+        self.with(|b| b.arm(seq))
+    }
+    fn fire(&mut self, seq: u32, exposure_us: u32) -> Result<Option<u64>, TriggerError> {
+        self.with(|b| b.fire(seq, exposure_us)).map(Some)
+    }
+}
+
+/// Options of a capture session (the `[capture]` part of a station config).
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct CaptureOptions {
+    pub station: String,
+    /// every camera's frame must arrive within this window after the trigger
+    pub window_ms: u64,
+    /// largest spread of the cameras' sensor timestamps
+    pub max_skew_ms: f64,
+    /// attempts after the first when a capture fails
+    pub retries: u32,
+    /// keep failed sets under `failed/<id>/` with the reason, instead of removing them
+    pub keep_failed: bool,
+    pub exposure_us: u32,
+}
+
+impl Default for CaptureOptions {
+    fn default() -> Self {
+        CaptureOptions { station: "station".into(), window_ms: 2000, max_skew_ms: 5.0, retries: 1, keep_failed: false, exposure_us: 8000 }
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum CaptureError {
+    #[error(transparent)]
+    Camera(#[from] CameraError),
+    #[error(transparent)]
+    Trigger(#[from] TriggerError),
+    #[error("sensor timestamps spread {spread_ms:.2} ms (at most {max_ms} ms): {detail}")]
+    Skew { spread_ms: f64, max_ms: f64, detail: String },
+    #[error("writing {path}: {msg}")]
+    Write { path: String, msg: String },
+    #[error("capture failed {attempts} times; last: {last}")]
+    GaveUp { attempts: u32, last: Box<CaptureError> },
+}
+
+/// `manifest.json` of a capture set (layout in DESIGN.md).
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Manifest {
+    pub format: String,
+    pub version: u32,
+    pub id: String,
+    pub station: String,
+    pub subject: Option<String>,
+    pub started_utc: String,
+    pub finished_utc: String,
+    pub trigger: TriggerRecord,
+    pub cameras: Vec<CameraRecord>,
+}
+
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct TriggerRecord {
+    pub kind: String,
+    pub sequence: u32,
+    pub box_time_us: Option<u64>,
+}
+
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct CameraRecord {
+    pub id: String,
+    pub pod: String,
+    pub side: String,
+    pub file: String,
+    pub width: u32,
+    pub height: u32,
+    pub sensor_timestamp_us: u64,
+    pub sequence: u32,
+    pub exposure_us: Option<u32>,
+}
+
+impl Manifest {
+    pub const FORMAT: &'static str = "conformd-capture";
+
+    /// Reads and checks a set's manifest.
+    pub fn read(dir: &Path) -> Result<Manifest, CaptureError> {
+        let p = dir.join("manifest.json");
+        let err = |msg: String| CaptureError::Write { path: p.display().to_string(), msg };
+        let bytes = std::fs::read(&p).map_err(|e| err(e.to_string()))?;
+        let m: Manifest = serde_json::from_slice(&bytes).map_err(|e| err(format!("not a valid manifest: {e}")))?;
+        if m.format != Self::FORMAT || m.version != 1 {
+            return Err(err(format!("format {} version {} is not conformd-capture 1", m.format, m.version)));
+        }
+        Ok(m)
+    }
+}
+
+/// UTC time as `YYYYMMDDTHHMMSS.mmmZ` (sortable, safe in file names).
+pub fn utc_stamp(t: SystemTime) -> String {
+    let d = t.duration_since(UNIX_EPOCH).unwrap_or_default();
+    let secs = d.as_secs() as i64;
+    let (days, rem) = (secs.div_euclid(86_400), secs.rem_euclid(86_400));
+    // civil date from days since 1970-01-01 (H. Hinnant's algorithm)
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z.rem_euclid(146_097);
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let day = doy - (153 * mp + 2) / 5 + 1;
+    let month = if mp < 10 { mp + 3 } else { mp - 9 };
+    let year = yoe + era * 400 + if month <= 2 { 1 } else { 0 };
+    format!(
+        "{year:04}{month:02}{day:02}T{:02}{:02}{:02}.{:03}Z",
+        rem / 3600,
+        rem % 3600 / 60,
+        rem % 60,
+        d.subsec_millis()
+    )
+}
+
+/// Writes bytes to a file and syncs it.
+fn write_synced(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    let mut f = std::fs::File::create(path)?;
+    f.write_all(bytes)?;
+    f.sync_all()
+}
+
+fn sync_dir(dir: &Path) {
+    if let Ok(d) = std::fs::File::open(dir) {
+        let _ = d.sync_all();
+    }
+}
+
+/// A capture station's cameras, trigger and capture directory.
+pub struct Session {
+    pub cameras: Vec<Box<dyn Camera>>,
+    pub trigger: Box<dyn Trigger + Send>,
+    /// the `captures/` directory
+    pub root: PathBuf,
+    pub options: CaptureOptions,
+    pub settings: CameraSettings,
+    sequence: u32,
+    last_id: String,
+    counter: u32,
+}
+
+/// What a successful capture wrote.
+#[derive(Debug, Clone)]
+pub struct CaptureSet {
+    pub id: String,
+    pub dir: PathBuf,
+    pub manifest: Manifest,
+    pub attempts: u32,
+}
+
+impl Session {
+    pub fn new(cameras: Vec<Box<dyn Camera>>, trigger: Box<dyn Trigger + Send>, root: &Path, options: CaptureOptions, settings: CameraSettings) -> Self {
+        Session { cameras, trigger, root: root.to_path_buf(), options, settings, sequence: 0, last_id: String::new(), counter: 0 }
+    }
+
+    /// Configures every camera once.
+    pub fn configure(&mut self) -> Result<(), CaptureError> {
+        for c in &mut self.cameras {
+            c.configure(&self.settings)?;
+        }
+        Ok(())
+    }
+
+    /// A new capture id: UTC time, then a counter, unique per station and time-ordered.
+    pub fn next_id(&mut self) -> String {
+        let stamp = utc_stamp(SystemTime::now());
+        self.counter = if stamp == self.last_id { self.counter + 1 } else { 0 };
+        self.last_id = stamp.clone();
+        loop {
+            let id = format!("{stamp}-{:03}", self.counter);
+            if !self.root.join(&id).exists() && !self.root.join("failed").join(&id).exists() {
+                return id;
+            }
+            self.counter += 1;
+        }
+    }
+
+    /// Captures one set, retrying as configured.
+    pub fn capture(&mut self, subject: Option<&str>) -> Result<CaptureSet, CaptureError> {
+        let mut last = None;
+        let attempts = self.options.retries + 1;
+        for attempt in 1..=attempts {
+            match self.attempt(subject) {
+                Ok(mut set) => {
+                    set.attempts = attempt;
+                    return Ok(set);
+                }
+                Err(e) => last = Some(e),
+            }
+        }
+        let last = last.expect("at least one attempt");
+        if attempts == 1 {
+            return Err(last);
+        }
+        Err(CaptureError::GaveUp { attempts, last: Box::new(last) })
+    }
+
+    fn attempt(&mut self, subject: Option<&str>) -> Result<CaptureSet, CaptureError> {
+        let id = self.next_id();
+        let started = SystemTime::now();
+        let frames = self.collect();
+        for c in &mut self.cameras {
+            c.close();
+        }
+        let result = frames.and_then(|(frames, box_time)| {
+            check_skew(&frames, self.options.max_skew_ms)?;
+            self.write(&id, subject, started, &frames, box_time)
+        });
+        if let Err(e) = &result {
+            self.discard(&id, e);
+        }
+        result
+    }
+
+    /// Arms, fires and collects one frame per camera.
+    fn collect(&mut self) -> Result<(Vec<Frame>, Option<u64>), CaptureError> {
+        self.sequence += 1;
+        let seq = self.sequence;
+        for c in &mut self.cameras {
+            c.arm()?;
+        }
+        self.trigger.arm(seq)?;
+        let box_time = self.trigger.fire(seq, self.options.exposure_us)?;
+        let deadline = Instant::now() + Duration::from_millis(self.options.window_ms);
+        let mut frames = Vec::with_capacity(self.cameras.len());
+        for c in &mut self.cameras {
+            frames.push(c.grab(deadline)?);
+        }
+        Ok((frames, box_time))
+    }
+
+    fn write(&self, id: &str, subject: Option<&str>, started: SystemTime, frames: &[Frame], box_time: Option<u64>) -> Result<CaptureSet, CaptureError> {
+        let partial = self.root.join(format!(".{id}.partial"));
+        let werr = |p: &Path, e: &dyn std::fmt::Display| CaptureError::Write { path: p.display().to_string(), msg: e.to_string() };
+        std::fs::create_dir_all(&partial).map_err(|e| werr(&partial, &e))?;
+        let mut cameras = Vec::new();
+        for (f, c) in frames.iter().zip(&self.cameras) {
+            let info = c.info();
+            let file = format!("{}.{}", info.id, f.extension());
+            let bytes = f.encode().map_err(|e| werr(&partial.join(&file), &e))?;
+            write_synced(&partial.join(&file), &bytes).map_err(|e| werr(&partial.join(&file), &e))?;
+            cameras.push(CameraRecord {
+                id: info.id.clone(),
+                pod: info.pod.clone(),
+                side: info.side.clone(),
+                file,
+                width: f.width,
+                height: f.height,
+                sensor_timestamp_us: f.sensor_time.as_micros() as u64,
+                sequence: f.sequence,
+                exposure_us: f.exposure_us,
+            });
+        }
+        let manifest = Manifest {
+            format: Manifest::FORMAT.into(),
+            version: 1,
+            id: id.into(),
+            station: self.options.station.clone(),
+            subject: subject.map(str::to_string),
+            started_utc: utc_stamp(started),
+            finished_utc: utc_stamp(SystemTime::now()),
+            trigger: TriggerRecord { kind: self.trigger.kind().into(), sequence: self.sequence, box_time_us: box_time },
+            cameras,
+        };
+        // the manifest last: a set without one is incomplete
+        let json = serde_json::to_vec_pretty(&manifest).expect("a manifest serialises");
+        let mp = partial.join("manifest.json");
+        write_synced(&mp, &json).map_err(|e| werr(&mp, &e))?;
+        sync_dir(&partial);
+        let dir = self.root.join(id);
+        std::fs::rename(&partial, &dir).map_err(|e| werr(&dir, &e))?;
+        sync_dir(&self.root);
+        Ok(CaptureSet { id: id.into(), dir, manifest, attempts: 1 })
+    }
+
+    /// Removes a failed attempt's partial set, or keeps it under `failed/<id>/` with
+    /// `reason.txt`.
+    fn discard(&self, id: &str, why: &CaptureError) {
+        let partial = self.root.join(format!(".{id}.partial"));
+        if self.options.keep_failed {
+            let failed = self.root.join("failed").join(id);
+            if std::fs::create_dir_all(self.root.join("failed")).is_ok() {
+                if !partial.exists() {
+                    let _ = std::fs::create_dir_all(&partial);
+                }
+                let _ = std::fs::write(partial.join("reason.txt"), format!("{why}\n"));
+                if std::fs::rename(&partial, &failed).is_ok() {
+                    return;
+                }
+            }
+        }
+        let _ = std::fs::remove_dir_all(&partial);
+    }
+}
+
+fn check_skew(frames: &[Frame], max_ms: f64) -> Result<(), CaptureError> {
+    let (Some(lo), Some(hi)) = (frames.iter().min_by_key(|f| f.sensor_time), frames.iter().max_by_key(|f| f.sensor_time)) else {
+        return Ok(());
+    };
+    let spread_ms = (hi.sensor_time - lo.sensor_time).as_secs_f64() * 1000.0;
+    if spread_ms > max_ms {
+        return Err(CaptureError::Skew { spread_ms, max_ms, detail: format!("{} is {spread_ms:.2} ms after {}", hi.camera, lo.camera) });
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn utc_stamps_are_civil_dates() {
+        let t = UNIX_EPOCH + Duration::from_millis(1_795_313_106_789); // 2026-11-22T02:05:06.789Z
+        assert_eq!(utc_stamp(t), "20261122T020506.789Z");
+        assert_eq!(utc_stamp(UNIX_EPOCH + Duration::from_secs(951_782_400)), "20000229T000000.000Z");
+    }
+}
