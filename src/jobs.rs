@@ -42,7 +42,7 @@ pub fn load_conform_options(path: &Path) -> Result<ConformOptions, JobError> {
         msg: e.to_string(),
     })?;
     // a station config holds sections; a conform.toml holds the options themselves
-    const STATION_SECTIONS: [&str; 6] = ["template", "station", "rig", "capture", "daemon", "model"];
+    const STATION_SECTIONS: [&str; 8] = ["template", "station", "rig", "capture", "trigger", "cameras", "daemon", "model"];
     let table = match table.get("conform") {
         Some(toml::Value::Table(t)) => t.clone(),
         _ if STATION_SECTIONS.iter().any(|k| table.contains_key(*k)) => toml::Table::new(),
@@ -516,4 +516,13 @@ pub fn model_score(model_path: &Path, paths: &[PathBuf]) -> Result<Vec<crate::mo
             model.score(&p.display().to_string(), &m).map_err(|e| JobError::Usage(e.to_string()))
         })
         .collect()
+}
+
+/// Captures one set with the station config's rig; the result names the set's folder.
+pub fn capture(config: &Path, subject: Option<&str>) -> Result<crate::rig::capture::CaptureSet, JobError> {
+    let rig = crate::rig::station::RigConfig::load(config).map_err(|e| JobError::Usage(e.to_string()))?;
+    std::fs::create_dir_all(&rig.capture.root)
+        .map_err(|source| JobError::Io { path: rig.capture.root.display().to_string(), source })?;
+    let mut session = rig.open().map_err(|e| JobError::Usage(e.to_string()))?;
+    session.capture(subject).map_err(|e| JobError::Usage(e.to_string()))
 }

@@ -91,6 +91,17 @@ enum Cmd {
         #[arg(long)]
         out: PathBuf,
     },
+    /// Capture one set with the station's cameras and trigger (atomically).
+    Capture {
+        /// station config with [capture], [[cameras]] and optionally [trigger]
+        #[arg(long)]
+        config: PathBuf,
+        /// the animal's or person's id, recorded in the manifest
+        #[arg(long)]
+        subject: Option<String>,
+    },
+    /// List V4L2 cameras with their stable names, formats, sizes and controls.
+    Cameras,
     /// Statistical shape model over conformed meshes.
     Model {
         #[command(subcommand)]
@@ -290,6 +301,35 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
         Cmd::Render { mesh, colour_by, views, width, height, out } => {
             jobs::render(&mesh, &colour_by, &views, width, height, &out)?;
             println!("wrote {}", out.display());
+        }
+        Cmd::Capture { config, subject } => {
+            let set = jobs::capture(&config, subject.as_deref())?;
+            println!(
+                "captured {} ({} cameras, {} attempt{})",
+                set.id,
+                set.manifest.cameras.len(),
+                set.attempts,
+                if set.attempts == 1 { "" } else { "s" }
+            );
+            println!("wrote {}", set.dir.display());
+        }
+        Cmd::Cameras => {
+            let list = conformd::rig::v4l2::list_devices();
+            if list.is_empty() {
+                println!("no V4L2 cameras found (no usable /dev/video* device on this machine)");
+            }
+            for d in list {
+                println!("{} ({}, driver {})", d.path.display(), d.name, d.driver);
+                for b in &d.by_id {
+                    println!("  by-id: /dev/v4l/by-id/{b}");
+                }
+                for f in &d.formats {
+                    println!("  format {f}");
+                }
+                for c in &d.controls {
+                    println!("  control {c}");
+                }
+            }
         }
         Cmd::Model { cmd } => match cmd {
             ModelCmd::Build { meshes, out, align, group, max_modes, quality } => {

@@ -6,6 +6,7 @@
 pub mod camera;
 pub mod capture;
 pub mod replay;
+pub mod station;
 pub mod trigger;
 pub mod v4l2;
 

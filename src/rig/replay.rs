@@ -20,6 +20,12 @@ pub enum Fault {
     Device(String),
 }
 
+/// The replay cameras' common clock (like CLOCK_MONOTONIC for V4L2 timestamps).
+fn clock_origin() -> Instant {
+    static ORIGIN: std::sync::OnceLock<Instant> = std::sync::OnceLock::new();
+    *ORIGIN.get_or_init(Instant::now)
+}
+
 /// Frames served in turn, looping.
 pub struct ReplayCamera {
     info: CameraInfo,
@@ -27,8 +33,9 @@ pub struct ReplayCamera {
     next: usize,
     sequence: u32,
     armed: bool,
-    /// the replay clock: sensor time of the next frame
-    clock: Duration,
+    /// when the camera was last armed: a triggered frame is exposed then, on every
+    /// camera of the rig alike
+    armed_at: Instant,
     pub latency: Duration,
     /// faults by grab number (0-based, counting every grab)
     pub faults: BTreeMap<usize, Fault>,
@@ -44,7 +51,7 @@ impl ReplayCamera {
             next: 0,
             sequence: 0,
             armed: false,
-            clock: Duration::from_secs(1000),
+            armed_at: Instant::now(),
             latency: Duration::ZERO,
             faults: BTreeMap::new(),
             grabs: 0,
@@ -103,6 +110,7 @@ impl Camera for ReplayCamera {
             return Err(CameraError::Device { camera: self.info.id.clone(), msg: "no frames to replay".into() });
         }
         self.armed = true;
+        self.armed_at = Instant::now();
         Ok(())
     }
 
@@ -134,14 +142,13 @@ impl Camera for ReplayCamera {
         }
         let (w, h, data) = self.frames[self.next % self.frames.len()].clone();
         self.next += 1;
-        self.clock += Duration::from_millis(500);
         let skew = if let Some(Fault::Skew(d)) = fault { d } else { Duration::ZERO };
         Ok(Frame {
             camera: self.info.id.clone(),
             width: w,
             height: h,
             data,
-            sensor_time: self.clock + skew,
+            sensor_time: self.armed_at.duration_since(clock_origin()) + skew,
             sequence: expected,
             exposure_us: self.exposure_us,
         })
