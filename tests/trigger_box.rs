@@ -187,3 +187,30 @@ fn the_link_reconnects_when_the_device_comes_back() {
     script2.stop.store(true, Ordering::SeqCst);
     sim2.join().unwrap();
 }
+
+#[test]
+fn a_capture_session_fires_through_the_box() {
+    use conformd::rig::camera::{Camera, CameraInfo, CameraSettings, PixelFormat};
+    use conformd::rig::capture::{CaptureOptions, Session};
+    use conformd::rig::replay::ReplayCamera;
+    let (master, slave) = TTYPort::pair().unwrap();
+    let script = Script::default();
+    let sim = run_box(master, script.clone());
+    let b = client(slave).unwrap();
+    let cams: Vec<Box<dyn Camera>> = ["left", "right"]
+        .iter()
+        .map(|s| Box::new(ReplayCamera::synthetic(CameraInfo { id: format!("pod1-{s}"), pod: "pod1".into(), side: s.to_string() }, 16, 12)) as Box<dyn Camera>)
+        .collect();
+    let dir = tempfile::tempdir().unwrap();
+    let settings = CameraSettings { format: PixelFormat::Grey, width: 16, height: 12, external_trigger: true, ..Default::default() };
+    let mut s = Session::new(cams, Box::new(b), dir.path(), CaptureOptions { max_skew_ms: 50.0, ..Default::default() }, settings);
+    s.configure().unwrap();
+    let a = s.capture(Some("sow-1")).unwrap();
+    let c = s.capture(Some("sow-1")).unwrap();
+    assert_eq!(a.manifest.trigger.kind, "serial");
+    assert_eq!((a.manifest.trigger.sequence, c.manifest.trigger.sequence), (1, 2));
+    assert!(c.manifest.trigger.box_time_us.unwrap() > a.manifest.trigger.box_time_us.unwrap(), "the box's timestamps are recorded");
+    drop(s);
+    script.stop.store(true, Ordering::SeqCst);
+    assert_eq!(sim.join().unwrap(), 2);
+}
