@@ -22,17 +22,28 @@ fn main() {
     let samples: Vec<(String, conformd::mesh::Mesh)> = (0..100)
         .map(|i| {
             let mut pose = BTreeMap::new();
-            for (p, r) in [("swing", 20.0), ("nod", 14.0), ("twist", 8.0), ("head_turn", 10.0)] {
+            for (p, r) in [
+                ("swing", 20.0),
+                ("nod", 14.0),
+                ("twist", 8.0),
+                ("head_turn", 10.0),
+            ] {
                 pose.insert(p.to_string(), rng.random_range(-r..r));
             }
             let mut shape = BTreeMap::new();
             shape.insert("length".to_string(), rng.random_range(0.9..1.1));
             shape.insert("girth".to_string(), rng.random_range(0.9..1.1));
-            let m = templates::subject(&fig, Kind::Pig, &shape, &templates::pose(Kind::Pig, &pose)).unwrap();
+            let m = templates::subject(&fig, Kind::Pig, &shape, &templates::pose(Kind::Pig, &pose))
+                .unwrap();
             (format!("s{i}"), m)
         })
         .collect();
-    println!("conformd model benchmark ({} threads), {} meshes of {} vertices", rayon::current_num_threads(), samples.len(), fig.mesh.vertices.len());
+    println!(
+        "conformd model benchmark ({} threads), {} meshes of {} vertices",
+        rayon::current_num_threads(),
+        samples.len(),
+        fig.mesh.vertices.len()
+    );
     let build: Vec<f64> = (0..3)
         .map(|_| {
             let t = Instant::now();
@@ -42,7 +53,10 @@ fn main() {
         })
         .collect();
     let b = median(build);
-    println!("model build (Procrustes + PCA, 30 modes kept): median {b:.3} s (target 2 s: {})", if b <= 2.0 { "met" } else { "MISSED" });
+    println!(
+        "model build (Procrustes + PCA, 30 modes kept): median {b:.3} s (target 2 s: {})",
+        if b <= 2.0 { "met" } else { "MISSED" }
+    );
     let model = ShapeModel::build(&samples, &BuildOptions::default()).unwrap();
     let score: Vec<f64> = (0..50)
         .map(|i| {
@@ -52,8 +66,15 @@ fn main() {
         })
         .collect();
     let s = median(score) * 1000.0;
-    println!("score one mesh: median {s:.2} ms (target 10 ms: {})", if s <= 10.0 { "met" } else { "MISSED" });
-    let opts = RenderOptions { width: 800, height: 600, ..Default::default() };
+    println!(
+        "score one mesh: median {s:.2} ms (target 10 ms: {})",
+        if s <= 10.0 { "met" } else { "MISSED" }
+    );
+    let opts = RenderOptions {
+        width: 800,
+        height: 600,
+        ..Default::default()
+    };
     let render_t: Vec<f64> = (0..10)
         .map(|_| {
             let t = Instant::now();
@@ -62,5 +83,9 @@ fn main() {
         })
         .collect();
     let r = median(render_t) * 1000.0;
-    println!("800x600 preview, two views, {} triangles: median {r:.1} ms (target 200 ms: {})", fig.mesh.triangles.len(), if r <= 200.0 { "met" } else { "MISSED" });
+    println!(
+        "800x600 preview, two views, {} triangles: median {r:.1} ms (target 200 ms: {})",
+        fig.mesh.triangles.len(),
+        if r <= 200.0 { "met" } else { "MISSED" }
+    );
 }

@@ -29,20 +29,28 @@ pub enum JobError {
     },
 }
 
-/// Reads conformation options from a TOML file: either a whole `conform.toml`, or a
-/// station config whose `[conform]` table holds them. Unknown keys are errors.
-pub fn load_conform_options(path: &Path) -> Result<ConformOptions, JobError> {
+/// Reads a TOML file into a table; errors name the file.
+fn read_toml(path: &Path) -> Result<toml::Table, JobError> {
     let name = path.display().to_string();
     let text = std::fs::read_to_string(path).map_err(|source| JobError::Io {
         path: name.clone(),
         source,
     })?;
-    let table: toml::Table = toml::from_str(&text).map_err(|e| JobError::Config {
-        path: name.clone(),
+    toml::from_str(&text).map_err(|e| JobError::Config {
+        path: name,
         msg: e.to_string(),
-    })?;
+    })
+}
+
+/// Reads conformation options from a TOML file: either a whole `conform.toml`, or a
+/// station config whose `[conform]` table holds them. Unknown keys are errors.
+pub fn load_conform_options(path: &Path) -> Result<ConformOptions, JobError> {
+    let name = path.display().to_string();
+    let table = read_toml(path)?;
     // a station config holds sections; a conform.toml holds the options themselves
-    const STATION_SECTIONS: [&str; 8] = ["template", "station", "rig", "capture", "trigger", "cameras", "daemon", "model"];
+    const STATION_SECTIONS: [&str; 8] = [
+        "template", "station", "rig", "capture", "trigger", "cameras", "daemon", "model",
+    ];
     let table = match table.get("conform") {
         Some(toml::Value::Table(t)) => t.clone(),
         _ if STATION_SECTIONS.iter().any(|k| table.contains_key(*k)) => toml::Table::new(),
@@ -81,15 +89,22 @@ impl TemplateSource {
     /// config file's folder.
     pub fn from_config(path: &Path) -> Result<Option<TemplateSource>, JobError> {
         let name = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|source| JobError::Io { path: name.clone(), source })?;
-        let table: toml::Table = toml::from_str(&text).map_err(|e| JobError::Config { path: name.clone(), msg: e.to_string() })?;
-        let Some(t) = table.get("template") else { return Ok(None) };
-        let mut src: TemplateSource = t
-            .clone()
-            .try_into()
-            .map_err(|e: toml::de::Error| JobError::Config { path: name.clone(), msg: format!("[template]: {e}") })?;
+        let table = read_toml(path)?;
+        let Some(t) = table.get("template") else {
+            return Ok(None);
+        };
+        let mut src: TemplateSource =
+            t.clone()
+                .try_into()
+                .map_err(|e: toml::de::Error| JobError::Config {
+                    path: name.clone(),
+                    msg: format!("[template]: {e}"),
+                })?;
         let base = path.parent().unwrap_or(Path::new("."));
-        for p in [&mut src.mesh, &mut src.landmarks, &mut src.groups].into_iter().flatten() {
+        for p in [&mut src.mesh, &mut src.landmarks, &mut src.groups]
+            .into_iter()
+            .flatten()
+        {
             if p.is_relative() {
                 *p = base.join(&*p);
             }
@@ -261,17 +276,35 @@ pub fn demo(
         )?;
         // a picture of the result, coloured by its distance to the true (whole) box
         let size = crate::mesh::V3::from(cases::BOX_SIZE);
-        let values: Vec<f64> =
-            r.mesh.vertices.iter().map(|p| crate::synth::distance_to_box_surface(p, &size)).collect();
+        let values: Vec<f64> = r
+            .mesh
+            .vertices
+            .iter()
+            .map(|p| crate::synth::distance_to_box_surface(p, &size))
+            .collect();
         let max = values.iter().cloned().fold(0.0, f64::max);
         let views = vec![
-            crate::render::View { azimuth: 30.0, elevation: 30.0 },
-            crate::render::View { azimuth: 150.0, elevation: -20.0 },
+            crate::render::View {
+                azimuth: 30.0,
+                elevation: 30.0,
+            },
+            crate::render::View {
+                azimuth: 150.0,
+                elevation: -20.0,
+            },
         ];
         let img = crate::render::render(
             &r.mesh,
-            &crate::render::Colouring::Values { values, min: 0.0, max, unit: "TO BOX".into() },
-            &crate::render::RenderOptions { views, ..Default::default() },
+            &crate::render::Colouring::Values {
+                values,
+                min: 0.0,
+                max,
+                unit: "TO BOX".into(),
+            },
+            &crate::render::RenderOptions {
+                views,
+                ..Default::default()
+            },
         );
         let mut png = Vec::new();
         img.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
@@ -363,15 +396,27 @@ pub fn template(
 ) -> Result<TemplateSummary, JobError> {
     use crate::synth::templates;
     if !(500..=200_000).contains(&vertices) {
-        return Err(JobError::Usage(format!("--vertices must be 500 to 200000, got {vertices}")));
+        return Err(JobError::Usage(format!(
+            "--vertices must be 500 to 200000, got {vertices}"
+        )));
     }
-    let pose_names: Vec<&str> = templates::pose_parameters(kind).iter().map(|p| p.0).collect();
-    let pose_params = templates::parse_parameters(pose, &pose_names, "pose").map_err(JobError::Usage)?;
+    let pose_names: Vec<&str> = templates::pose_parameters(kind)
+        .iter()
+        .map(|p| p.0)
+        .collect();
+    let pose_params =
+        templates::parse_parameters(pose, &pose_names, "pose").map_err(JobError::Usage)?;
     let shape_names = templates::shape_parameters(kind);
-    let shape_params = templates::parse_parameters(shape, &shape_names, "shape").map_err(JobError::Usage)?;
+    let shape_params =
+        templates::parse_parameters(shape, &shape_names, "shape").map_err(JobError::Usage)?;
     let fig = templates::build(kind, vertices);
-    let mut mesh = templates::subject(&fig, kind, &shape_params, &templates::pose(kind, &pose_params))
-        .map_err(JobError::Usage)?;
+    let mut mesh = templates::subject(
+        &fig,
+        kind,
+        &shape_params,
+        &templates::pose(kind, &pose_params),
+    )
+    .map_err(JobError::Usage)?;
     mesh.groups = fig.mesh.groups.clone();
     mesh::write_mesh(out, &mesh)?;
     let landmarks = out.with_extension("landmarks");
@@ -382,7 +427,11 @@ pub fn template(
         landmarks,
         vertices: mesh.vertices.len(),
         triangles: mesh.triangles.len(),
-        groups: mesh.groups.iter().map(|(k, v)| (k.clone(), v.len())).collect(),
+        groups: mesh
+            .groups
+            .iter()
+            .map(|(k, v)| (k.clone(), v.len()))
+            .collect(),
         landmark_count: lms.len(),
         watertight: topology::report(&mesh).watertight,
     })
@@ -413,18 +462,36 @@ impl std::str::FromStr for ColourBy {
 
 /// Renders a mesh to a PNG preview from the named views (`front`, `back`, `left`,
 /// `right`/`side`, `top`, `three-quarter`).
-pub fn render(mesh_path: &Path, colour: &ColourBy, views: &[String], width: u32, height: u32, out: &Path) -> Result<(), JobError> {
+pub fn render(
+    mesh_path: &Path,
+    colour: &ColourBy,
+    views: &[String],
+    width: u32,
+    height: u32,
+    out: &Path,
+) -> Result<(), JobError> {
     use crate::render::{self, Colouring, RenderOptions, View};
     if !(64..=8192).contains(&width) || !(64..=8192).contains(&height) {
-        return Err(JobError::Usage(format!("image size {width}x{height}: each side must be 64 to 8192 pixels")));
+        return Err(JobError::Usage(format!(
+            "image size {width}x{height}: each side must be 64 to 8192 pixels"
+        )));
     }
     let m = mesh::read_mesh(mesh_path)?;
     if m.triangles.is_empty() {
-        return Err(JobError::Usage(format!("{}: a point cloud has no surface to render", mesh_path.display())));
+        return Err(JobError::Usage(format!(
+            "{}: a point cloud has no surface to render",
+            mesh_path.display()
+        )));
     }
     let views = views
         .iter()
-        .map(|v| View::named(v).ok_or_else(|| JobError::Usage(format!("unknown view '{v}' (front, back, left, right, side, top, three-quarter)"))))
+        .map(|v| {
+            View::named(v).ok_or_else(|| {
+                JobError::Usage(format!(
+                    "unknown view '{v}' (front, back, left, right, side, top, three-quarter)"
+                ))
+            })
+        })
         .collect::<Result<Vec<_>, _>>()?;
     let colouring = match colour {
         ColourBy::None => Colouring::Plain,
@@ -435,10 +502,24 @@ pub fn render(mesh_path: &Path, colour: &ColourBy, views: &[String], width: u32,
                 .map_err(|e| JobError::Usage(format!("{}: {e}", scan.display())))?;
             let values: Vec<f64> = m.vertices.iter().map(|p| surface.distance(p)).collect();
             let max = values.iter().cloned().fold(0.0, f64::max);
-            Colouring::Values { values, min: 0.0, max, unit: "DISTANCE".into() }
+            Colouring::Values {
+                values,
+                min: 0.0,
+                max,
+                unit: "DISTANCE".into(),
+            }
         }
     };
-    let img = render::render(&m, &colouring, &RenderOptions { width, height, views, ..Default::default() });
+    let img = render::render(
+        &m,
+        &colouring,
+        &RenderOptions {
+            width,
+            height,
+            views,
+            ..Default::default()
+        },
+    );
     render::save_png(&img, out)?;
     Ok(())
 }
@@ -456,10 +537,14 @@ pub fn model_build(
         .iter()
         .map(|p| Ok((p.display().to_string(), mesh::read_mesh(p)?)))
         .collect::<Result<Vec<_>, JobError>>()?;
-    let model = crate::model::ShapeModel::build(&samples, opts).map_err(|e| JobError::Usage(e.to_string()))?;
+    let model = crate::model::ShapeModel::build(&samples, opts)
+        .map_err(|e| JobError::Usage(e.to_string()))?;
     model.save(out)?;
     let q = if quality {
-        Some(crate::model::quality(&samples, opts, 10, 1).map_err(|e| JobError::Usage(e.to_string()))?)
+        Some(
+            crate::model::quality(&samples, opts, 10, 1)
+                .map_err(|e| JobError::Usage(e.to_string()))?,
+        )
     } else {
         None
     };
@@ -468,18 +553,34 @@ pub fn model_build(
 
 /// Writes the mean and mean +/- `sigma` standard deviations along each of the first
 /// `modes` modes as meshes, and a PNG sheet of them (rows: modes; columns: -, mean, +).
-pub fn model_modes(model_path: &Path, modes: usize, sigma: f64, view: &str, out_dir: &Path) -> Result<Vec<PathBuf>, JobError> {
+pub fn model_modes(
+    model_path: &Path,
+    modes: usize,
+    sigma: f64,
+    view: &str,
+    out_dir: &Path,
+) -> Result<Vec<PathBuf>, JobError> {
     use crate::render::{self, Colouring, RenderOptions, View};
-    let model = crate::model::ShapeModel::load(model_path).map_err(|e| JobError::Usage(e.to_string()))?;
-    std::fs::create_dir_all(out_dir).map_err(|source| JobError::Io { path: out_dir.display().to_string(), source })?;
-    let view = View::named(view).ok_or_else(|| JobError::Usage(format!("unknown view '{view}'")))?;
+    let model =
+        crate::model::ShapeModel::load(model_path).map_err(|e| JobError::Usage(e.to_string()))?;
+    std::fs::create_dir_all(out_dir).map_err(|source| JobError::Io {
+        path: out_dir.display().to_string(),
+        source,
+    })?;
+    let view =
+        View::named(view).ok_or_else(|| JobError::Usage(format!("unknown view '{view}'")))?;
     let k = modes.min(model.modes.len());
     let mut files = Vec::new();
     let mean = model.instance_mesh(&[]);
     let p = out_dir.join("mean.ply");
     mesh::write_mesh(&p, &mean)?;
     files.push(p);
-    let opts = RenderOptions { width: 360, height: 270, views: vec![view], ..Default::default() };
+    let opts = RenderOptions {
+        width: 360,
+        height: 270,
+        views: vec![view],
+        ..Default::default()
+    };
     let mut cells = Vec::new();
     for m in 0..k {
         let sd = model.variances[m].sqrt();
@@ -488,7 +589,12 @@ pub fn model_modes(model_path: &Path, modes: usize, sigma: f64, view: &str, out_
             b[m] = f * sd;
             let inst = model.instance_mesh(&b);
             if col != 1 {
-                let p = out_dir.join(format!("mode{}_{}{}sd.ply", m + 1, if *f < 0.0 { "minus" } else { "plus" }, sigma));
+                let p = out_dir.join(format!(
+                    "mode{}_{}{}sd.ply",
+                    m + 1,
+                    if *f < 0.0 { "minus" } else { "plus" },
+                    sigma
+                ));
                 mesh::write_mesh(&p, &inst)?;
                 files.push(p);
             }
@@ -507,22 +613,36 @@ pub fn model_modes(model_path: &Path, modes: usize, sigma: f64, view: &str, out_
 }
 
 /// Scores conformed meshes against a model.
-pub fn model_score(model_path: &Path, paths: &[PathBuf]) -> Result<Vec<crate::model::Score>, JobError> {
-    let model = crate::model::ShapeModel::load(model_path).map_err(|e| JobError::Usage(e.to_string()))?;
+pub fn model_score(
+    model_path: &Path,
+    paths: &[PathBuf],
+) -> Result<Vec<crate::model::Score>, JobError> {
+    let model =
+        crate::model::ShapeModel::load(model_path).map_err(|e| JobError::Usage(e.to_string()))?;
     paths
         .iter()
         .map(|p| {
             let m = mesh::read_mesh(p)?;
-            model.score(&p.display().to_string(), &m).map_err(|e| JobError::Usage(e.to_string()))
+            model
+                .score(&p.display().to_string(), &m)
+                .map_err(|e| JobError::Usage(e.to_string()))
         })
         .collect()
 }
 
 /// Captures one set with the station config's rig; the result names the set's folder.
-pub fn capture(config: &Path, subject: Option<&str>) -> Result<crate::rig::capture::CaptureSet, JobError> {
-    let rig = crate::rig::station::RigConfig::load(config).map_err(|e| JobError::Usage(e.to_string()))?;
-    std::fs::create_dir_all(&rig.capture.root)
-        .map_err(|source| JobError::Io { path: rig.capture.root.display().to_string(), source })?;
+pub fn capture(
+    config: &Path,
+    subject: Option<&str>,
+) -> Result<crate::rig::capture::CaptureSet, JobError> {
+    let rig =
+        crate::rig::station::RigConfig::load(config).map_err(|e| JobError::Usage(e.to_string()))?;
+    std::fs::create_dir_all(&rig.capture.root).map_err(|source| JobError::Io {
+        path: rig.capture.root.display().to_string(),
+        source,
+    })?;
     let mut session = rig.open().map_err(|e| JobError::Usage(e.to_string()))?;
-    session.capture(subject).map_err(|e| JobError::Usage(e.to_string()))
+    session
+        .capture(subject)
+        .map_err(|e| JobError::Usage(e.to_string()))
 }

@@ -203,15 +203,27 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
             }
             let template = match (template, &config) {
                 (Some(t), _) => match t.parse::<conformd::synth::templates::Kind>() {
-                    Ok(kind) if !std::path::Path::new(&t).exists() => {
-                        jobs::TemplateSource { generic: Some(kind), ..Default::default() }
-                    }
-                    _ => jobs::TemplateSource { mesh: Some(t.into()), groups: template_groups, ..Default::default() },
+                    Ok(kind) if !std::path::Path::new(&t).exists() => jobs::TemplateSource {
+                        generic: Some(kind),
+                        ..Default::default()
+                    },
+                    _ => jobs::TemplateSource {
+                        mesh: Some(t.into()),
+                        groups: template_groups,
+                        ..Default::default()
+                    },
                 },
                 (None, Some(c)) => jobs::TemplateSource::from_config(c)?.ok_or_else(|| {
-                    jobs::JobError::Usage(format!("no --template, and {} has no [template] table", c.display()))
+                    jobs::JobError::Usage(format!(
+                        "no --template, and {} has no [template] table",
+                        c.display()
+                    ))
                 })?,
-                (None, None) => return Err(jobs::JobError::Usage("--template is needed (or a --config with a [template] table)".into())),
+                (None, None) => {
+                    return Err(jobs::JobError::Usage(
+                        "--template is needed (or a --config with a [template] table)".into(),
+                    ));
+                }
             };
             let files = jobs::ConformFiles {
                 template,
@@ -286,19 +298,40 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
                 println!("wrote {}", f.display());
             }
         }
-        Cmd::Template { kind, vertices, pose, shape, out } => {
+        Cmd::Template {
+            kind,
+            vertices,
+            pose,
+            shape,
+            out,
+        } => {
             let s = jobs::template(kind, vertices, &pose, &shape, &out)?;
             println!(
                 "{kind:?} template: {} vertices, {} triangles, {} landmarks, groups {}; watertight {}",
                 s.vertices,
                 s.triangles,
                 s.landmark_count,
-                s.groups.iter().map(|(g, n)| format!("{g} ({n})")).collect::<Vec<_>>().join(", "),
+                s.groups
+                    .iter()
+                    .map(|(g, n)| format!("{g} ({n})"))
+                    .collect::<Vec<_>>()
+                    .join(", "),
                 s.watertight
             );
-            println!("wrote {}\nwrote {}", s.mesh.display(), s.landmarks.display());
+            println!(
+                "wrote {}\nwrote {}",
+                s.mesh.display(),
+                s.landmarks.display()
+            );
         }
-        Cmd::Render { mesh, colour_by, views, width, height, out } => {
+        Cmd::Render {
+            mesh,
+            colour_by,
+            views,
+            width,
+            height,
+            out,
+        } => {
             jobs::render(&mesh, &colour_by, &views, width, height, &out)?;
             println!("wrote {}", out.display());
         }
@@ -332,32 +365,73 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
             }
         }
         Cmd::Model { cmd } => match cmd {
-            ModelCmd::Build { meshes, out, align, group, max_modes, quality } => {
-                let opts = conformd::model::BuildOptions { align, group, max_modes };
+            ModelCmd::Build {
+                meshes,
+                out,
+                align,
+                group,
+                max_modes,
+                quality,
+            } => {
+                let opts = conformd::model::BuildOptions {
+                    align,
+                    group,
+                    max_modes,
+                };
                 let (m, q) = jobs::model_build(&meshes, &opts, &out, quality)?;
-                println!("model of {} meshes, {} vertices, {} modes", m.samples.len(), m.indices.len(), m.modes.len());
+                println!(
+                    "model of {} meshes, {} vertices, {} modes",
+                    m.samples.len(),
+                    m.indices.len(),
+                    m.modes.len()
+                );
                 let mut cum = 0.0;
                 for (i, e) in m.explained.iter().enumerate().take(10) {
                     cum += e;
-                    println!("  mode {:>2}: {:5.1}% of the variance ({:5.1}% cumulative)", i + 1, e * 100.0, cum * 100.0);
+                    println!(
+                        "  mode {:>2}: {:5.1}% of the variance ({:5.1}% cumulative)",
+                        i + 1,
+                        e * 100.0,
+                        cum * 100.0
+                    );
                 }
                 if let Some(q) = q {
                     println!("  modes  compactness  generalisation  specificity");
                     for i in 0..q.modes.len() {
-                        println!("  {:>5}  {:>11.3}  {:>14.4e}  {:>11.4e}", q.modes[i], q.compactness[i], q.generalisation[i], q.specificity[i]);
+                        println!(
+                            "  {:>5}  {:>11.3}  {:>14.4e}  {:>11.4e}",
+                            q.modes[i], q.compactness[i], q.generalisation[i], q.specificity[i]
+                        );
                     }
                 }
                 println!("wrote {}", out.display());
             }
-            ModelCmd::Modes { model, modes, sigma, view, out } => {
+            ModelCmd::Modes {
+                model,
+                modes,
+                sigma,
+                view,
+                out,
+            } => {
                 for f in jobs::model_modes(&model, modes, sigma, &view, &out)? {
                     println!("wrote {}", f.display());
                 }
             }
             ModelCmd::Score { model, meshes } => {
                 for s in jobs::model_score(&model, &meshes)? {
-                    let z: Vec<String> = s.scores_sd.iter().take(5).map(|z| format!("{z:+.2}")).collect();
-                    println!("{}: scores (sd) [{}], residual {:.3e}, mahalanobis {:.2}", s.name, z.join(", "), s.residual, s.mahalanobis);
+                    let z: Vec<String> = s
+                        .scores_sd
+                        .iter()
+                        .take(5)
+                        .map(|z| format!("{z:+.2}"))
+                        .collect();
+                    println!(
+                        "{}: scores (sd) [{}], residual {:.3e}, mahalanobis {:.2}",
+                        s.name,
+                        z.join(", "),
+                        s.residual,
+                        s.mahalanobis
+                    );
                 }
             }
         },

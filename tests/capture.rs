@@ -4,7 +4,9 @@
 //! row leave exactly 100 sets.
 
 use conformd::rig::camera::{Camera, CameraInfo, CameraSettings, PixelFormat};
-use conformd::rig::capture::{CaptureError, CaptureOptions, Manifest, Session, SoftwareTrigger, Trigger};
+use conformd::rig::capture::{
+    CaptureError, CaptureOptions, Manifest, Session, SoftwareTrigger, Trigger,
+};
 use conformd::rig::replay::{Fault, ReplayCamera};
 use conformd::rig::trigger::TriggerError;
 use std::path::Path;
@@ -12,8 +14,20 @@ use std::time::Duration;
 
 fn cameras(faults: &[(usize, usize, Fault)]) -> Vec<Box<dyn Camera>> {
     let mut out: Vec<Box<dyn Camera>> = Vec::new();
-    for (k, (pod, side)) in [("pod1", "left"), ("pod1", "right"), ("pod2", "left"), ("pod2", "right")].iter().enumerate() {
-        let info = CameraInfo { id: format!("{pod}-{side}"), pod: pod.to_string(), side: side.to_string() };
+    for (k, (pod, side)) in [
+        ("pod1", "left"),
+        ("pod1", "right"),
+        ("pod2", "left"),
+        ("pod2", "right"),
+    ]
+    .iter()
+    .enumerate()
+    {
+        let info = CameraInfo {
+            id: format!("{pod}-{side}"),
+            pod: pod.to_string(),
+            side: side.to_string(),
+        };
         let mut cam = ReplayCamera::synthetic(info, 64, 48);
         for (c, at, f) in faults {
             if *c == k {
@@ -26,10 +40,21 @@ fn cameras(faults: &[(usize, usize, Fault)]) -> Vec<Box<dyn Camera>> {
 }
 
 fn settings() -> CameraSettings {
-    CameraSettings { format: PixelFormat::Grey, width: 64, height: 48, exposure_us: Some(8000), ..Default::default() }
+    CameraSettings {
+        format: PixelFormat::Grey,
+        width: 64,
+        height: 48,
+        exposure_us: Some(8000),
+        ..Default::default()
+    }
 }
 
-fn session(root: &Path, cams: Vec<Box<dyn Camera>>, trigger: Box<dyn Trigger + Send>, opts: CaptureOptions) -> Session {
+fn session(
+    root: &Path,
+    cams: Vec<Box<dyn Camera>>,
+    trigger: Box<dyn Trigger + Send>,
+    opts: CaptureOptions,
+) -> Session {
     let mut s = Session::new(cams, trigger, root, opts, settings());
     s.configure().unwrap();
     s
@@ -38,7 +63,12 @@ fn session(root: &Path, cams: Vec<Box<dyn Camera>>, trigger: Box<dyn Trigger + S
 /// A short window; a skew limit loose enough that a loaded test machine pausing between
 /// arming two replay cameras is not taken for a skewed rig.
 fn quick() -> CaptureOptions {
-    CaptureOptions { window_ms: 150, retries: 0, max_skew_ms: 50.0, ..Default::default() }
+    CaptureOptions {
+        window_ms: 150,
+        retries: 0,
+        max_skew_ms: 50.0,
+        ..Default::default()
+    }
 }
 
 /// Nothing half-written is visible: every entry of `captures/` is a set with a manifest
@@ -47,11 +77,17 @@ fn only_complete_sets(root: &Path) -> usize {
     let mut n = 0;
     for e in std::fs::read_dir(root).unwrap().filter_map(|e| e.ok()) {
         let name = e.file_name().to_string_lossy().to_string();
-        assert!(!name.ends_with(".partial"), "partial set {name} left behind");
+        assert!(
+            !name.ends_with(".partial"),
+            "partial set {name} left behind"
+        );
         if name == "failed" {
             continue;
         }
-        assert!(e.path().join("manifest.json").exists(), "{name} has no manifest");
+        assert!(
+            e.path().join("manifest.json").exists(),
+            "{name} has no manifest"
+        );
         n += 1;
     }
     n
@@ -69,14 +105,23 @@ fn a_good_capture_writes_a_complete_set() {
     assert_eq!(m.trigger.kind, "software");
     for c in &m.cameras {
         let img = image::open(set.dir.join(&c.file)).expect("the image reads back");
-        assert_eq!((img.width(), img.height(), c.exposure_us), (64, 48, Some(8000)));
+        assert_eq!(
+            (img.width(), img.height(), c.exposure_us),
+            (64, 48, Some(8000))
+        );
     }
     assert_eq!(only_complete_sets(dir.path()), 1);
     // the set replays: a replay camera serves the recorded image
-    let info = CameraInfo { id: "pod2-left".into(), pod: "pod2".into(), side: "left".into() };
+    let info = CameraInfo {
+        id: "pod2-left".into(),
+        pod: "pod2".into(),
+        side: "left".into(),
+    };
     let mut r = ReplayCamera::from_capture_sets(info, &[&set.dir]).unwrap();
     r.arm().unwrap();
-    let f = r.grab(std::time::Instant::now() + Duration::from_millis(100)).unwrap();
+    let f = r
+        .grab(std::time::Instant::now() + Duration::from_millis(100))
+        .unwrap();
     assert_eq!((f.width, f.height), (64, 48));
 }
 
@@ -89,21 +134,47 @@ impl Trigger for RefusingBox {
         Ok(())
     }
     fn fire(&mut self, seq: u32, _: u32) -> Result<Option<u64>, TriggerError> {
-        Err(TriggerError::Refused { port: "sim".into(), command: format!("FIRE {seq}"), code: "E_FLASH".into(), text: "flash not charged".into() })
+        Err(TriggerError::Refused {
+            port: "sim".into(),
+            command: format!("FIRE {seq}"),
+            code: "E_FLASH".into(),
+            text: "flash not charged".into(),
+        })
     }
 }
 
 #[test]
 fn every_fault_leaves_nothing_half_written_and_says_why() {
     let cases: Vec<(&str, Vec<(usize, usize, Fault)>, &str)> = vec![
-        ("timeout", vec![(2, 0, Fault::Timeout)], "camera pod2-left: no frame within"),
-        ("lost frame", vec![(1, 0, Fault::LostFrame)], "camera pod1-right: frame 0 was lost"),
-        ("skew", vec![(3, 0, Fault::Skew(Duration::from_millis(120)))], "(at most 50 ms): pod2-right is 1"),
-        ("unplugged", vec![(0, 0, Fault::Device("device disconnected".into()))], "camera pod1-left: device disconnected"),
+        (
+            "timeout",
+            vec![(2, 0, Fault::Timeout)],
+            "camera pod2-left: no frame within",
+        ),
+        (
+            "lost frame",
+            vec![(1, 0, Fault::LostFrame)],
+            "camera pod1-right: frame 0 was lost",
+        ),
+        (
+            "skew",
+            vec![(3, 0, Fault::Skew(Duration::from_millis(120)))],
+            "(at most 50 ms): pod2-right is 1",
+        ),
+        (
+            "unplugged",
+            vec![(0, 0, Fault::Device("device disconnected".into()))],
+            "camera pod1-left: device disconnected",
+        ),
     ];
     for (what, faults, reason) in cases {
         let dir = tempfile::tempdir().unwrap();
-        let mut s = session(dir.path(), cameras(&faults), Box::new(SoftwareTrigger), quick());
+        let mut s = session(
+            dir.path(),
+            cameras(&faults),
+            Box::new(SoftwareTrigger),
+            quick(),
+        );
         let e = s.capture(None).expect_err(what).to_string();
         assert!(e.contains(reason), "{what}: {e}");
         assert_eq!(only_complete_sets(dir.path()), 0, "{what}");
@@ -112,7 +183,10 @@ fn every_fault_leaves_nothing_half_written_and_says_why() {
     let dir = tempfile::tempdir().unwrap();
     let mut s = session(dir.path(), cameras(&[]), Box::new(RefusingBox), quick());
     let e = s.capture(None).unwrap_err().to_string();
-    assert!(e.contains("refused FIRE 1: E_FLASH flash not charged"), "{e}");
+    assert!(
+        e.contains("refused FIRE 1: E_FLASH flash not charged"),
+        "{e}"
+    );
     assert_eq!(only_complete_sets(dir.path()), 0);
     // the capture folder cannot be written (a file stands where a folder should)
     let dir = tempfile::tempdir().unwrap();
@@ -127,19 +201,43 @@ fn every_fault_leaves_nothing_half_written_and_says_why() {
 #[test]
 fn failed_sets_can_be_kept_with_their_reason_and_retries_recover() {
     let dir = tempfile::tempdir().unwrap();
-    let opts = CaptureOptions { keep_failed: true, ..quick() };
-    let mut s = session(dir.path(), cameras(&[(0, 0, Fault::Skew(Duration::from_millis(90)))]), Box::new(SoftwareTrigger), opts);
+    let opts = CaptureOptions {
+        keep_failed: true,
+        ..quick()
+    };
+    let mut s = session(
+        dir.path(),
+        cameras(&[(0, 0, Fault::Skew(Duration::from_millis(90)))]),
+        Box::new(SoftwareTrigger),
+        opts,
+    );
     let e = s.capture(None).unwrap_err().to_string();
-    let failed: Vec<_> = std::fs::read_dir(dir.path().join("failed")).unwrap().filter_map(|e| e.ok()).collect();
+    let failed: Vec<_> = std::fs::read_dir(dir.path().join("failed"))
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .collect();
     assert_eq!(failed.len(), 1);
     let reason = std::fs::read_to_string(failed[0].path().join("reason.txt")).unwrap();
-    assert!(reason.contains("sensor timestamps spread 9") && reason.contains("(at most 50 ms)") && e.contains("at most 50 ms"), "{reason}");
+    assert!(
+        reason.contains("sensor timestamps spread 9")
+            && reason.contains("(at most 50 ms)")
+            && e.contains("at most 50 ms"),
+        "{reason}"
+    );
     assert_eq!(only_complete_sets(dir.path()), 0);
 
     // one retry: the first attempt times out, the second succeeds
     let dir = tempfile::tempdir().unwrap();
-    let opts = CaptureOptions { retries: 1, ..quick() };
-    let mut s = session(dir.path(), cameras(&[(1, 0, Fault::Timeout)]), Box::new(SoftwareTrigger), opts);
+    let opts = CaptureOptions {
+        retries: 1,
+        ..quick()
+    };
+    let mut s = session(
+        dir.path(),
+        cameras(&[(1, 0, Fault::Timeout)]),
+        Box::new(SoftwareTrigger),
+        opts,
+    );
     let set = s.capture(None).expect("the retry succeeds");
     assert_eq!(set.attempts, 2);
     assert_eq!(only_complete_sets(dir.path()), 1);
@@ -159,7 +257,12 @@ fn a_hundred_captures_leave_a_hundred_sets() {
     assert_eq!(sorted, ids, "ids are time-ordered");
     sorted.dedup();
     assert_eq!(sorted.len(), 100, "ids are unique");
-    assert!(ids.iter().all(|i| i.chars().all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '.')), "ids are safe file names");
+    assert!(
+        ids.iter().all(|i| i
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '.')),
+        "ids are safe file names"
+    );
 }
 
 #[test]
@@ -194,15 +297,34 @@ synthetic = true
     )
     .unwrap();
     let out = std::process::Command::new(env!("CARGO_BIN_EXE_conformd"))
-        .args(["capture", "--config", cfg.to_str().unwrap(), "--subject", "pig-7"])
+        .args([
+            "capture",
+            "--config",
+            cfg.to_str().unwrap(),
+            "--subject",
+            "pig-7",
+        ])
         .output()
         .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let text = String::from_utf8_lossy(&out.stdout);
-    assert!(text.contains("captured") && text.contains("2 cameras"), "{text}");
+    assert!(
+        text.contains("captured") && text.contains("2 cameras"),
+        "{text}"
+    );
     assert_eq!(only_complete_sets(&dir.path().join("captures")), 1);
     std::fs::write(&cfg, "[capture]\nroot = \"c\"\n").unwrap();
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_conformd")).args(["capture", "--config", cfg.to_str().unwrap()]).output().unwrap();
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_conformd"))
+        .args(["capture", "--config", cfg.to_str().unwrap()])
+        .output()
+        .unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success() && err.contains("station.toml"), "{err}");
+    assert!(
+        !out.status.success() && err.contains("station.toml"),
+        "{err}"
+    );
 }

@@ -208,16 +208,35 @@ fn bad_inputs_give_one_clear_line() {
         "{err}"
     );
 
-    let out = conformd(&["conform", "--scan", "scan.ply", "--out", "x.ply"], dir.path());
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success() && err.contains("--template is needed"), "{err}");
-    std::fs::write(dir.path().join("g.txt"), "ears 1 2 999999\n").unwrap();
     let out = conformd(
-        &["conform", "--template", "template.obj", "--template-groups", "g.txt", "--scan", "scan.ply", "--out", "x.ply"],
+        &["conform", "--scan", "scan.ply", "--out", "x.ply"],
         dir.path(),
     );
     let err = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success() && err.contains("g.txt: line 1") && err.contains("999999"), "{err}");
+    assert!(
+        !out.status.success() && err.contains("--template is needed"),
+        "{err}"
+    );
+    std::fs::write(dir.path().join("g.txt"), "ears 1 2 999999\n").unwrap();
+    let out = conformd(
+        &[
+            "conform",
+            "--template",
+            "template.obj",
+            "--template-groups",
+            "g.txt",
+            "--scan",
+            "scan.ply",
+            "--out",
+            "x.ply",
+        ],
+        dir.path(),
+    );
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && err.contains("g.txt: line 1") && err.contains("999999"),
+        "{err}"
+    );
 }
 
 #[test]
@@ -273,32 +292,115 @@ fn a_user_mesh_or_a_generic_template_named_in_a_config() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     // a posed pig as the scan, the generic pig (with its own landmarks) as the template
-    let out = conformd(&["template", "pig", "--vertices", "3000", "--pose", "swing=10", "--out", "subject.ply"], d);
+    let out = conformd(
+        &[
+            "template",
+            "pig",
+            "--vertices",
+            "3000",
+            "--pose",
+            "swing=10",
+            "--out",
+            "subject.ply",
+        ],
+        d,
+    );
     assert!(out.status.success());
     let subject = conformd::mesh::read_mesh(&d.join("subject.ply")).unwrap();
     let lms = conformd::mesh::read_landmarks(&d.join("subject.landmarks")).unwrap();
-    let pts: Vec<conformd::mesh::Landmark> = lms.iter().map(|l| match l.pos {
-        conformd::mesh::LandmarkPos::Vertex(v) => conformd::mesh::Landmark { name: l.name.clone(), pos: conformd::mesh::LandmarkPos::Point(subject.vertices[v as usize]) },
-        p => conformd::mesh::Landmark { name: l.name.clone(), pos: p },
-    }).collect();
+    let pts: Vec<conformd::mesh::Landmark> = lms
+        .iter()
+        .map(|l| match l.pos {
+            conformd::mesh::LandmarkPos::Vertex(v) => conformd::mesh::Landmark {
+                name: l.name.clone(),
+                pos: conformd::mesh::LandmarkPos::Point(subject.vertices[v as usize]),
+            },
+            p => conformd::mesh::Landmark {
+                name: l.name.clone(),
+                pos: p,
+            },
+        })
+        .collect();
     std::fs::write(d.join("scan.landmarks"), landmarks_text(&pts)).unwrap();
-    std::fs::write(d.join("station.toml"), "[template]\ngeneric = \"pig\"\nvertices = 3000\n[conform]\nmax_iterations = 8\n").unwrap();
-    let out = conformd(&["conform", "--config", "station.toml", "--scan", "subject.ply", "--scan-landmarks", "scan.landmarks", "--out", "c.ply"], d);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    std::fs::write(
+        d.join("station.toml"),
+        "[template]\ngeneric = \"pig\"\nvertices = 3000\n[conform]\nmax_iterations = 8\n",
+    )
+    .unwrap();
+    let out = conformd(
+        &[
+            "conform",
+            "--config",
+            "station.toml",
+            "--scan",
+            "subject.ply",
+            "--scan-landmarks",
+            "scan.landmarks",
+            "--out",
+            "c.ply",
+        ],
+        d,
+    );
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let c = conformd::mesh::read_mesh(&d.join("c.ply")).unwrap();
-    assert_eq!(c.triangles, subject.triangles, "the generic pig of the config is the subject's template");
+    assert_eq!(
+        c.triangles, subject.triangles,
+        "the generic pig of the config is the subject's template"
+    );
     let diag = subject.diagonal();
-    let err: f64 = c.vertices.iter().zip(&subject.vertices).map(|(a, b)| (a - b).norm()).sum::<f64>() / c.vertices.len() as f64 / diag;
+    let err: f64 = c
+        .vertices
+        .iter()
+        .zip(&subject.vertices)
+        .map(|(a, b)| (a - b).norm())
+        .sum::<f64>()
+        / c.vertices.len() as f64
+        / diag;
     assert!(err < 0.01, "correspondence error {:.3}%", err * 100.0);
     // a user mesh as the template: one of the samples serves as the generic mesh
     std::fs::write(d.join("groups.txt"), "front 0 1 2 3\n").unwrap();
     std::fs::write(d.join("user.toml"), "[template]\nmesh = \"subject.ply\"\nlandmarks = \"subject.landmarks\"\ngroups = \"groups.txt\"\n[conform]\nmax_iterations = 3\n[conform.stiffness]\nfront = 2.0\n").unwrap();
-    let out = conformd(&["conform", "--config", "user.toml", "--scan", "subject.ply", "--scan-landmarks", "scan.landmarks", "--out", "u.ply"], d);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let out = conformd(
+        &[
+            "conform",
+            "--config",
+            "user.toml",
+            "--scan",
+            "subject.ply",
+            "--scan-landmarks",
+            "scan.landmarks",
+            "--out",
+            "u.ply",
+        ],
+        d,
+    );
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     std::fs::write(d.join("bad.toml"), "[template]\ngeneric = \"cow\"\n").unwrap();
-    let out = conformd(&["conform", "--config", "bad.toml", "--scan", "subject.ply", "--out", "x.ply"], d);
+    let out = conformd(
+        &[
+            "conform",
+            "--config",
+            "bad.toml",
+            "--scan",
+            "subject.ply",
+            "--out",
+            "x.ply",
+        ],
+        d,
+    );
     let err = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success() && err.contains("bad.toml") && err.contains("cow"), "{err}");
+    assert!(
+        !out.status.success() && err.contains("bad.toml") && err.contains("cow"),
+        "{err}"
+    );
 }
 
 #[test]
@@ -316,36 +418,110 @@ fn example_config_documents_the_defaults() {
 fn template_model_modes_and_score() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let out = conformd(&["template", "pig", "--vertices", "2000", "--out", "pig.obj"], d);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let out = conformd(
+        &["template", "pig", "--vertices", "2000", "--out", "pig.obj"],
+        d,
+    );
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     assert!(d.join("pig.landmarks").exists());
     let back = conformd::mesh::read_mesh(&d.join("pig.obj")).unwrap();
-    assert!(back.groups.contains_key("ears") && back.groups.contains_key("torso"), "groups survive the OBJ file");
+    assert!(
+        back.groups.contains_key("ears") && back.groups.contains_key("torso"),
+        "groups survive the OBJ file"
+    );
     let mut names = Vec::new();
-    for (i, pose) in ["swing=10", "swing=-10,nod=5", "nod=-8", "twist=6", "swing=4,twist=-5", "nod=9,twist=2"].iter().enumerate() {
+    for (i, pose) in [
+        "swing=10",
+        "swing=-10,nod=5",
+        "nod=-8",
+        "twist=6",
+        "swing=4,twist=-5",
+        "nod=9,twist=2",
+    ]
+    .iter()
+    .enumerate()
+    {
         let name = format!("p{i}.ply");
-        let out = conformd(&["template", "pig", "--vertices", "2000", "--pose", pose, "--out", &name], d);
-        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        let out = conformd(
+            &[
+                "template",
+                "pig",
+                "--vertices",
+                "2000",
+                "--pose",
+                pose,
+                "--out",
+                &name,
+            ],
+            d,
+        );
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
         names.push(name);
     }
     let mut args = vec!["model", "build", "--out", "m.json", "--quality"];
     args.extend(names.iter().map(String::as_str));
     let out = conformd(&args, d);
     let text = String::from_utf8_lossy(&out.stdout);
-    assert!(out.status.success() && text.contains("mode  1") && text.contains("compactness"), "{text}{}", String::from_utf8_lossy(&out.stderr));
-    let out = conformd(&["model", "modes", "--model", "m.json", "--modes", "2", "--out", "modes"], d);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success() && text.contains("mode  1") && text.contains("compactness"),
+        "{text}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let out = conformd(
+        &[
+            "model", "modes", "--model", "m.json", "--modes", "2", "--out", "modes",
+        ],
+        d,
+    );
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let sheet = image::open(d.join("modes/modes.png")).unwrap();
-    assert_eq!((sheet.width(), sheet.height()), (3 * 360, 2 * 270), "rows are modes, columns -, mean, +");
+    assert_eq!(
+        (sheet.width(), sheet.height()),
+        (3 * 360, 2 * 270),
+        "rows are modes, columns -, mean, +"
+    );
     assert!(d.join("modes/mode1_plus3sd.ply").exists() && d.join("modes/mean.ply").exists());
-    let out = conformd(&["model", "score", "--model", "m.json", "p0.ply", "pig.obj"], d);
+    let out = conformd(
+        &["model", "score", "--model", "m.json", "p0.ply", "pig.obj"],
+        d,
+    );
     let text = String::from_utf8_lossy(&out.stdout);
-    assert!(out.status.success() && text.contains("p0.ply: scores") && text.contains("mahalanobis"), "{text}");
-    let out = conformd(&["template", "body", "--vertices", "2000", "--out", "body.ply"], d);
+    assert!(
+        out.status.success() && text.contains("p0.ply: scores") && text.contains("mahalanobis"),
+        "{text}"
+    );
+    let out = conformd(
+        &[
+            "template",
+            "body",
+            "--vertices",
+            "2000",
+            "--out",
+            "body.ply",
+        ],
+        d,
+    );
     assert!(out.status.success());
     let out = conformd(&["model", "score", "--model", "m.json", "body.ply"], d);
     let err = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success() && err.contains("body.ply") && err.contains("not conformed from this model's template"), "{err}");
+    assert!(
+        !out.status.success()
+            && err.contains("body.ply")
+            && err.contains("not conformed from this model's template"),
+        "{err}"
+    );
 }
 
 #[test]
@@ -353,7 +529,9 @@ fn example_station_config_loads() {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/station.example.toml");
     let opts = conformd::jobs::load_conform_options(&path).expect("options load");
     assert_eq!(opts.stiffness.get("ears"), Some(&5.0));
-    let src = conformd::jobs::TemplateSource::from_config(&path).unwrap().expect("has [template]");
+    let src = conformd::jobs::TemplateSource::from_config(&path)
+        .unwrap()
+        .expect("has [template]");
     assert_eq!(src.generic, Some(conformd::synth::templates::Kind::Pig));
     assert_eq!(src.vertices, Some(10_000));
 }

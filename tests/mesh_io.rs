@@ -40,12 +40,22 @@ fn meshes_and_point_clouds_round_trip() {
 #[test]
 fn obj_keeps_triangle_order_and_groups() {
     let fig = conformd::synth::templates::build(conformd::synth::templates::Kind::Pig, 2000);
-    let back = conformd::mesh::io::read_obj_bytes("t.obj", conformd::mesh::io::obj_bytes(&fig.mesh).as_bytes()).unwrap();
-    assert_eq!(back.triangles, fig.mesh.triangles, "triangle order is part of the template");
+    let back = conformd::mesh::io::read_obj_bytes(
+        "t.obj",
+        conformd::mesh::io::obj_bytes(&fig.mesh).as_bytes(),
+    )
+    .unwrap();
+    assert_eq!(
+        back.triangles, fig.mesh.triangles,
+        "triangle order is part of the template"
+    );
     assert_eq!(back.vertices, fig.mesh.vertices);
     for (g, vs) in &fig.mesh.groups {
         let got = &back.groups[g];
-        assert!(vs.iter().filter(|v| got.binary_search(v).is_ok()).count() * 10 >= vs.len() * 9, "group {g} kept");
+        assert!(
+            vs.iter().filter(|v| got.binary_search(v).is_ok()).count() * 10 >= vs.len() * 9,
+            "group {g} kept"
+        );
     }
 }
 

@@ -7,7 +7,10 @@ use conformd::synth::templates::{self, Kind};
 fn coverage(img: &image::RgbImage, bg: [u8; 3]) -> (f64, f64) {
     let px: Vec<&image::Rgb<u8>> = img.pixels().filter(|p| p.0 != bg).collect();
     let share = px.len() as f64 / (img.width() * img.height()) as f64;
-    let lum: Vec<f64> = px.iter().map(|p| p.0.iter().map(|&c| c as f64).sum::<f64>() / 3.0).collect();
+    let lum: Vec<f64> = px
+        .iter()
+        .map(|p| p.0.iter().map(|&c| c as f64).sum::<f64>() / 3.0)
+        .collect();
     let mean = lum.iter().sum::<f64>() / lum.len().max(1) as f64;
     let sd = (lum.iter().map(|l| (l - mean).powi(2)).sum::<f64>() / lum.len().max(1) as f64).sqrt();
     (share, sd)
@@ -16,19 +19,46 @@ fn coverage(img: &image::RgbImage, bg: [u8; 3]) -> (f64, f64) {
 #[test]
 fn preview_shows_a_shaded_object() {
     let fig = templates::build(Kind::Pig, 3000);
-    let opts = RenderOptions { width: 800, height: 600, views: vec![View::named("side").unwrap()], ..Default::default() };
+    let opts = RenderOptions {
+        width: 800,
+        height: 600,
+        views: vec![View::named("side").unwrap()],
+        ..Default::default()
+    };
     let img = render(&fig.mesh, &Colouring::Plain, &opts);
     let (share, sd) = coverage(&img, opts.background);
-    eprintln!("side view: object covers {:.1}% of the image, brightness sd {sd:.1}", share * 100.0);
-    assert!((0.08..0.7).contains(&share), "object covers {:.1}%", share * 100.0);
+    eprintln!(
+        "side view: object covers {:.1}% of the image, brightness sd {sd:.1}",
+        share * 100.0
+    );
+    assert!(
+        (0.08..0.7).contains(&share),
+        "object covers {:.1}%",
+        share * 100.0
+    );
     assert!(sd > 8.0, "shaded, not flat: brightness sd {sd:.1}");
 
     // colouring by values: the colour bar's extremes appear
     let values: Vec<f64> = fig.mesh.vertices.iter().map(|p| p.x).collect();
-    let (min, max) = (values.iter().cloned().fold(f64::INFINITY, f64::min), values.iter().cloned().fold(f64::NEG_INFINITY, f64::max));
-    let img = render(&fig.mesh, &Colouring::Values { values, min, max, unit: "X".into() }, &opts);
+    let (min, max) = (
+        values.iter().cloned().fold(f64::INFINITY, f64::min),
+        values.iter().cloned().fold(f64::NEG_INFINITY, f64::max),
+    );
+    let img = render(
+        &fig.mesh,
+        &Colouring::Values {
+            values,
+            min,
+            max,
+            unit: "X".into(),
+        },
+        &opts,
+    );
     let has = |c: [u8; 3]| img.pixels().any(|p| p.0 == c);
-    assert!(has(colour_map(0.0)) && has(colour_map(1.0)), "colour bar drawn");
+    assert!(
+        has(colour_map(0.0)) && has(colour_map(1.0)),
+        "colour bar drawn"
+    );
 }
 
 #[test]
@@ -41,11 +71,24 @@ fn cli_renders_a_png_and_colours_by_distance() {
     conformd::mesh::write_mesh(&dir.path().join("scan.ply"), &scan).unwrap();
     let bin = env!("CARGO_BIN_EXE_conformd");
     let out = std::process::Command::new(bin)
-        .args(["render", "body.obj", "--colour-by", "distance-to=scan.ply", "--views", "front,top", "--out", "b.png"])
+        .args([
+            "render",
+            "body.obj",
+            "--colour-by",
+            "distance-to=scan.ply",
+            "--views",
+            "front,top",
+            "--out",
+            "b.png",
+        ])
         .current_dir(dir.path())
         .output()
         .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let img = image::open(dir.path().join("b.png")).unwrap().to_rgb8();
     assert_eq!(img.dimensions(), (800, 600));
     let (share, _) = coverage(&img, [250, 250, 250]);
@@ -55,5 +98,8 @@ fn cli_renders_a_png_and_colours_by_distance() {
         .current_dir(dir.path())
         .output()
         .unwrap();
-    assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("unknown view 'below'"));
+    assert!(
+        !out.status.success()
+            && String::from_utf8_lossy(&out.stderr).contains("unknown view 'below'")
+    );
 }

@@ -44,31 +44,65 @@ fn pig_postures_are_recovered_through_scanning_and_conformation() {
             p.insert(leg.to_string(), rng.random_range(-5.0..5.0));
         }
         truth.push(angles);
-        let subject = templates::subject(&fig, kind, &BTreeMap::new(), &templates::pose(kind, &p)).unwrap();
+        let subject =
+            templates::subject(&fig, kind, &BTreeMap::new(), &templates::pose(kind, &p)).unwrap();
         // a crate: cameras at both sides and one overhead
         let (scan, _) = cases::scan_subject(&subject, &[90.0, -90.0], 30_000, 0.001, i as u64);
         let scan_lms: Vec<Landmark> = lms
             .iter()
             .map(|l| {
-                let LandmarkPos::Vertex(v) = l.pos else { unreachable!() };
-                Landmark { name: l.name.clone(), pos: LandmarkPos::Point(subject.vertices[v as usize]) }
+                let LandmarkPos::Vertex(v) = l.pos else {
+                    unreachable!()
+                };
+                Landmark {
+                    name: l.name.clone(),
+                    pos: LandmarkPos::Point(subject.vertices[v as usize]),
+                }
             })
             .collect();
-        let r = conform(&fig.mesh, &scan, Some((&lms, &scan_lms)), &ConformOptions::default(), &mut |_| {}).unwrap();
+        let r = conform(
+            &fig.mesh,
+            &scan,
+            Some((&lms, &scan_lms)),
+            &ConformOptions::default(),
+            &mut |_| {},
+        )
+        .unwrap();
         let diag = subject.diagonal();
-        errors.push(r.mesh.vertices.iter().zip(&subject.vertices).map(|(a, b)| (a - b).norm()).sum::<f64>() / subject.vertices.len() as f64 / diag);
+        errors.push(
+            r.mesh
+                .vertices
+                .iter()
+                .zip(&subject.vertices)
+                .map(|(a, b)| (a - b).norm())
+                .sum::<f64>()
+                / subject.vertices.len() as f64
+                / diag,
+        );
         samples.push((format!("pig{i}"), r.mesh));
     }
     let model = ShapeModel::build(&samples, &BuildOptions::default()).unwrap();
     let first3: f64 = model.explained[..3].iter().sum();
-    let scores: Vec<Vec<f64>> = samples.iter().map(|(n, m)| model.score(n, m).unwrap().scores).collect();
+    let scores: Vec<Vec<f64>> = samples
+        .iter()
+        .map(|(n, m)| model.score(n, m).unwrap().scores)
+        .collect();
     eprintln!(
         "12 pig postures: conformation error mean {:.3}% (max {:.3}%); modes explain {:?}",
         errors.iter().sum::<f64>() / 12.0 * 100.0,
         errors.iter().cloned().fold(0.0, f64::max) * 100.0,
-        model.explained.iter().take(5).map(|e| format!("{:.1}%", e * 100.0)).collect::<Vec<_>>()
+        model
+            .explained
+            .iter()
+            .take(5)
+            .map(|e| format!("{:.1}%", e * 100.0))
+            .collect::<Vec<_>>()
     );
-    assert!(first3 >= 0.9, "first three modes explain {:.1}%", first3 * 100.0);
+    assert!(
+        first3 >= 0.9,
+        "first three modes explain {:.1}%",
+        first3 * 100.0
+    );
     let mut worst: f64 = 1.0;
     for (k, name) in names.iter().enumerate() {
         let param: Vec<f64> = truth.iter().map(|t| t[k]).collect();
@@ -80,7 +114,10 @@ fn pig_postures_are_recovered_through_scanning_and_conformation() {
         eprintln!("  {name}: |r| = {:.3} with mode {}", best.1, best.0 + 1);
         worst = worst.min(best.1);
     }
-    assert!(worst >= 0.9, "a posture angle correlates at most {worst:.3} with the first three modes");
+    assert!(
+        worst >= 0.9,
+        "a posture angle correlates at most {worst:.3} with the first three modes"
+    );
 }
 
 /// Twelve postures within +/-20 degrees: a Latin hypercube (each angle takes 12 evenly
@@ -91,7 +128,9 @@ fn pig_postures_are_recovered_through_scanning_and_conformation() {
 /// variance would make principal components that mix them, whatever the method.
 fn latin_hypercube(n: usize, rng: &mut ChaCha8Rng) -> Vec<[f64; 3]> {
     let spread = [20.0, 14.0, 8.0];
-    let levels: Vec<f64> = (0..n).map(|i| -1.0 + 2.0 * (i as f64 + 0.5) / n as f64).collect();
+    let levels: Vec<f64> = (0..n)
+        .map(|i| -1.0 + 2.0 * (i as f64 + 0.5) / n as f64)
+        .collect();
     let mut best: (f64, Vec<[f64; 3]>) = (f64::INFINITY, Vec::new());
     for _ in 0..500 {
         let cols: Vec<Vec<f64>> = (0..3)
@@ -103,9 +142,17 @@ fn latin_hypercube(n: usize, rng: &mut ChaCha8Rng) -> Vec<[f64; 3]> {
                 l
             })
             .collect();
-        let worst = [(0, 1), (0, 2), (1, 2)].iter().map(|&(a, b)| corr(&cols[a], &cols[b]).abs()).fold(0.0, f64::max);
+        let worst = [(0, 1), (0, 2), (1, 2)]
+            .iter()
+            .map(|&(a, b)| corr(&cols[a], &cols[b]).abs())
+            .fold(0.0, f64::max);
         if worst < best.0 {
-            best = (worst, (0..n).map(|i| [0, 1, 2].map(|k| cols[k][i] * spread[k])).collect());
+            best = (
+                worst,
+                (0..n)
+                    .map(|i| [0, 1, 2].map(|k| cols[k][i] * spread[k]))
+                    .collect(),
+            );
         }
     }
     best.1
@@ -143,7 +190,13 @@ fn body_shapes_span_the_true_subspace() {
                 let a: f64 = Normal::new(0.0, sd).unwrap().sample(&mut rng);
                 v.iter_mut().zip(f).for_each(|(p, d)| *p += d * a);
             }
-            v.iter_mut().for_each(|p| *p += V3::new(noise.sample(&mut rng), noise.sample(&mut rng), noise.sample(&mut rng)));
+            v.iter_mut().for_each(|p| {
+                *p += V3::new(
+                    noise.sample(&mut rng),
+                    noise.sample(&mut rng),
+                    noise.sample(&mut rng),
+                )
+            });
             (format!("body{i}"), Mesh::new(v, fig.mesh.triangles.clone()))
         })
         .collect();
@@ -152,8 +205,20 @@ fn body_shapes_span_the_true_subspace() {
     // mean (translations, rotations, scale), to first order.
     let mean = model.mean_shape();
     let c = mean.iter().sum::<V3>() / mean.len() as f64;
-    let flat = |f: &dyn Fn(&V3) -> V3| -> Vec<f64> { mean.iter().flat_map(|p| { let d = f(p); [d.x, d.y, d.z] }).collect() };
-    let mut similarity: Vec<Vec<f64>> = vec![flat(&|_| V3::x()), flat(&|_| V3::y()), flat(&|_| V3::z()), flat(&|p| p - c)];
+    let flat = |f: &dyn Fn(&V3) -> V3| -> Vec<f64> {
+        mean.iter()
+            .flat_map(|p| {
+                let d = f(p);
+                [d.x, d.y, d.z]
+            })
+            .collect()
+    };
+    let mut similarity: Vec<Vec<f64>> = vec![
+        flat(&|_| V3::x()),
+        flat(&|_| V3::y()),
+        flat(&|_| V3::z()),
+        flat(&|p| p - c),
+    ];
     for axis in [V3::x(), V3::y(), V3::z()] {
         similarity.push(flat(&|p| axis.cross(&(p - c))));
     }
@@ -163,22 +228,44 @@ fn body_shapes_span_the_true_subspace() {
         .map(|f| {
             let v = nalgebra::DVector::from_vec(f.iter().flat_map(|d| [d.x, d.y, d.z]).collect());
             let r = &v - &sim * (sim.transpose() * &v);
-            eprintln!("field keeps {:.1}% of its length after removing similarity motions", r.norm() / v.norm() * 100.0);
+            eprintln!(
+                "field keeps {:.1}% of its length after removing similarity motions",
+                r.norm() / v.norm() * 100.0
+            );
             r.iter().copied().collect()
         })
         .collect();
     let q_true = orthonormal(&truth);
     let q_model = DMatrix::from_fn(q_true.nrows(), 3, |i, j| model.modes[j][i] as f64);
-    let s = (q_true.transpose() * q_model).svd(false, false).singular_values;
-    let angles: Vec<f64> = s.iter().map(|c| c.clamp(-1.0, 1.0).acos().to_degrees()).collect();
-    eprintln!("principal angles between the model's first 3 modes and the true subspace: {angles:.2?} degrees; explained {:?}",
-        model.explained.iter().take(4).map(|e| format!("{:.1}%", e * 100.0)).collect::<Vec<_>>());
+    let s = (q_true.transpose() * q_model)
+        .svd(false, false)
+        .singular_values;
+    let angles: Vec<f64> = s
+        .iter()
+        .map(|c| c.clamp(-1.0, 1.0).acos().to_degrees())
+        .collect();
+    eprintln!(
+        "principal angles between the model's first 3 modes and the true subspace: {angles:.2?} degrees; explained {:?}",
+        model
+            .explained
+            .iter()
+            .take(4)
+            .map(|e| format!("{:.1}%", e * 100.0))
+            .collect::<Vec<_>>()
+    );
     assert!(angles.iter().all(|a| *a < 5.0), "angles {angles:?}");
 
     // model quality: compactness rises to 1, generalisation error falls with modes
     let q = quality(&samples[..15], &BuildOptions::default(), 5, 3).unwrap();
-    assert!(q.compactness.windows(2).all(|w| w[1] >= w[0]) && *q.compactness.last().unwrap() <= 1.0 + 1e-9);
-    assert!(q.generalisation[2] < q.generalisation[0], "{:?}", q.generalisation);
+    assert!(
+        q.compactness.windows(2).all(|w| w[1] >= w[0])
+            && *q.compactness.last().unwrap() <= 1.0 + 1e-9
+    );
+    assert!(
+        q.generalisation[2] < q.generalisation[0],
+        "{:?}",
+        q.generalisation
+    );
     assert!(q.specificity.iter().all(|s| s.is_finite() && *s > 0.0));
 }
 
@@ -188,30 +275,52 @@ fn model_files_are_versioned_and_checked() {
     let samples: Vec<(String, Mesh)> = (0..5)
         .map(|i| {
             let f = 1.0 + 0.1 * i as f64;
-            let v = sphere.vertices.iter().map(|p| V3::new(p.x * f, p.y, p.z / f)).collect();
+            let v = sphere
+                .vertices
+                .iter()
+                .map(|p| V3::new(p.x * f, p.y, p.z / f))
+                .collect();
             (format!("s{i}"), Mesh::new(v, sphere.triangles.clone()))
         })
         .collect();
-    let model = ShapeModel::build(&samples, &BuildOptions { align: Align::Rigid, ..Default::default() }).unwrap();
+    let model = ShapeModel::build(
+        &samples,
+        &BuildOptions {
+            align: Align::Rigid,
+            ..Default::default()
+        },
+    )
+    .unwrap();
     let dir = tempfile::tempdir().unwrap();
     let p = dir.path().join("m.json");
     model.save(&p).unwrap();
     let back = ShapeModel::load(&p).unwrap();
     assert_eq!(back.modes.len(), model.modes.len());
     let s = back.score("s3", &samples[3].1).unwrap();
-    assert!(s.residual < 1e-6, "a training sample is reconstructed: {}", s.residual);
+    assert!(
+        s.residual < 1e-6,
+        "a training sample is reconstructed: {}",
+        s.residual
+    );
     // another template
     let other = conformd::synth::icosphere(3);
     let e = back.score("other.ply", &other).unwrap_err().to_string();
-    assert!(e.contains("other.ply") && e.contains("not conformed from this model's template"), "{e}");
+    assert!(
+        e.contains("other.ply") && e.contains("not conformed from this model's template"),
+        "{e}"
+    );
     // a file from a future version
-    let text = std::fs::read_to_string(&p).unwrap().replace("\"version\":1", "\"version\":9");
+    let text = std::fs::read_to_string(&p)
+        .unwrap()
+        .replace("\"version\":1", "\"version\":9");
     std::fs::write(&p, text).unwrap();
     let e = ShapeModel::load(&p).unwrap_err().to_string();
     assert!(e.contains("version 9 is not supported"), "{e}");
     // meshes from different templates cannot make one model
     let mut mixed = samples.clone();
     mixed.push(("odd.ply".into(), other));
-    let e = ShapeModel::build(&mixed, &BuildOptions::default()).unwrap_err().to_string();
+    let e = ShapeModel::build(&mixed, &BuildOptions::default())
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("odd.ply"), "{e}");
 }

@@ -69,7 +69,11 @@ fn run_box(master: TTYPort, script: Script) -> std::thread::JoinHandle<u32> {
                         format!("ERR {seq} E_FLASH flash not charged\n").into_bytes()
                     } else {
                         fired += 1;
-                        let mut r = if fired == 1 { script.noise_before_ack.clone() } else { vec![] };
+                        let mut r = if fired == 1 {
+                            script.noise_before_ack.clone()
+                        } else {
+                            vec![]
+                        };
                         r.extend(format!("ACK {seq} {t}\n").bytes());
                         r
                     }
@@ -96,7 +100,10 @@ fn handshake_fire_events_and_garbage() {
     noise.extend(b"\nBOGUS 12\nACK x y\n");
     let script = Script {
         noise_before_ack: noise,
-        events_after_hello: vec!["EVT BUTTON 999".into(), "EVT RFID 982000123456789 1500".into()],
+        events_after_hello: vec![
+            "EVT BUTTON 999".into(),
+            "EVT RFID 982000123456789 1500".into(),
+        ],
         refuse_seq: Some(3),
         ..Default::default()
     };
@@ -105,20 +112,37 @@ fn handshake_fire_events_and_garbage() {
     let mut b = client(slave).expect("handshake");
     assert_eq!(b.firmware, "fw-2.1");
     b.arm(1).unwrap();
-    let t1 = b.fire(1, 8000).expect("fire 1 is acknowledged through the garbage");
+    let t1 = b
+        .fire(1, 8000)
+        .expect("fire 1 is acknowledged through the garbage");
     assert!(t1 > 1_000_000);
     let t2 = b.fire(2, 8000).unwrap();
     assert!(t2 > t1, "box timestamps advance");
     let e = b.fire(3, 8000).unwrap_err();
-    assert!(matches!(e, TriggerError::Refused { ref code, .. } if code == "E_FLASH"), "{e}");
+    assert!(
+        matches!(e, TriggerError::Refused { ref code, .. } if code == "E_FLASH"),
+        "{e}"
+    );
     assert!(e.to_string().contains("flash not charged"));
     assert!(b.ping().is_ok());
     let events = b.poll_events(Duration::from_millis(50)).unwrap();
     assert_eq!(events[0], BoxEvent::Button { box_time_us: 999 });
-    assert_eq!(events[1], BoxEvent::Rfid { tag: "982000123456789".into(), box_time_us: 1500 });
+    assert_eq!(
+        events[1],
+        BoxEvent::Rfid {
+            tag: "982000123456789".into(),
+            box_time_us: 1500
+        }
+    );
     // every bad line was reported, none was fatal
     let w = b.warnings.join(" | ");
-    assert!(w.contains("non-printable") && w.contains("over-long") && w.contains("unknown message 'BOGUS'") && w.contains("'x' is not a number"), "{w}");
+    assert!(
+        w.contains("non-printable")
+            && w.contains("over-long")
+            && w.contains("unknown message 'BOGUS'")
+            && w.contains("'x' is not a number"),
+        "{w}"
+    );
     drop(b);
     stop.store(true, Ordering::SeqCst);
     assert_eq!(sim.join().unwrap(), 2);
@@ -159,10 +183,19 @@ fn the_link_reconnects_when_the_device_comes_back() {
     sim.join().unwrap();
     std::fs::remove_file(&link_path).unwrap();
     let e = link.with(|b| b.fire(2, 8000)).unwrap_err();
-    assert!(matches!(e, TriggerError::Io { .. } | TriggerError::NoAnswer { .. }), "{e}");
+    assert!(
+        matches!(e, TriggerError::Io { .. } | TriggerError::NoAnswer { .. }),
+        "{e}"
+    );
     assert!(!link.is_connected(), "the dead connection is dropped");
     let e = link.with(|b| b.fire(2, 8000)).unwrap_err();
-    assert!(matches!(e, TriggerError::Disconnected { .. } | TriggerError::Io { .. }), "{e}");
+    assert!(
+        matches!(
+            e,
+            TriggerError::Disconnected { .. } | TriggerError::Io { .. }
+        ),
+        "{e}"
+    );
 
     // plugged back in: a new pty behind the same name
     let (master2, slave2) = TTYPort::pair().unwrap();
@@ -199,17 +232,48 @@ fn a_capture_session_fires_through_the_box() {
     let b = client(slave).unwrap();
     let cams: Vec<Box<dyn Camera>> = ["left", "right"]
         .iter()
-        .map(|s| Box::new(ReplayCamera::synthetic(CameraInfo { id: format!("pod1-{s}"), pod: "pod1".into(), side: s.to_string() }, 16, 12)) as Box<dyn Camera>)
+        .map(|s| {
+            Box::new(ReplayCamera::synthetic(
+                CameraInfo {
+                    id: format!("pod1-{s}"),
+                    pod: "pod1".into(),
+                    side: s.to_string(),
+                },
+                16,
+                12,
+            )) as Box<dyn Camera>
+        })
         .collect();
     let dir = tempfile::tempdir().unwrap();
-    let settings = CameraSettings { format: PixelFormat::Grey, width: 16, height: 12, external_trigger: true, ..Default::default() };
-    let mut s = Session::new(cams, Box::new(b), dir.path(), CaptureOptions { max_skew_ms: 50.0, ..Default::default() }, settings);
+    let settings = CameraSettings {
+        format: PixelFormat::Grey,
+        width: 16,
+        height: 12,
+        external_trigger: true,
+        ..Default::default()
+    };
+    let mut s = Session::new(
+        cams,
+        Box::new(b),
+        dir.path(),
+        CaptureOptions {
+            max_skew_ms: 50.0,
+            ..Default::default()
+        },
+        settings,
+    );
     s.configure().unwrap();
     let a = s.capture(Some("sow-1")).unwrap();
     let c = s.capture(Some("sow-1")).unwrap();
     assert_eq!(a.manifest.trigger.kind, "serial");
-    assert_eq!((a.manifest.trigger.sequence, c.manifest.trigger.sequence), (1, 2));
-    assert!(c.manifest.trigger.box_time_us.unwrap() > a.manifest.trigger.box_time_us.unwrap(), "the box's timestamps are recorded");
+    assert_eq!(
+        (a.manifest.trigger.sequence, c.manifest.trigger.sequence),
+        (1, 2)
+    );
+    assert!(
+        c.manifest.trigger.box_time_us.unwrap() > a.manifest.trigger.box_time_us.unwrap(),
+        "the box's timestamps are recorded"
+    );
     drop(s);
     script.stop.store(true, Ordering::SeqCst);
     assert_eq!(sim.join().unwrap(), 2);

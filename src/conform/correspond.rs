@@ -155,7 +155,8 @@ impl ScanSurface {
     pub fn distance(&self, x: &V3) -> f64 {
         match &self.index {
             Index::Mesh { tri, .. } => {
-                let (proj, _) = tri.project_local_point_and_get_location(PVec::new(x.x, x.y, x.z), false);
+                let (proj, _) =
+                    tri.project_local_point_and_get_location(PVec::new(x.x, x.y, x.z), false);
                 (V3::new(proj.point.x, proj.point.y, proj.point.z) - x).norm()
             }
             Index::Cloud { .. } => self.nearest_point(x).1,

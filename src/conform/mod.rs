@@ -618,12 +618,7 @@ pub fn conform(
 
         // 2. Correspondence.
         let t = Instant::now();
-        let normals = vertex_normals(&x, &template.triangles);
-        let matches: Vec<_> = x
-            .par_iter()
-            .zip(&normals)
-            .map(|(p, nv)| surface.query(p, nv, &limits))
-            .collect();
+        let (matches, _) = match_all(&surface, &x, &template.triangles, &limits);
         times.correspond += t.elapsed().as_secs_f64();
         let summary = MatchSummary::of(&matches);
         if let Some(prev) = reports.last_mut() {
@@ -776,12 +771,7 @@ pub fn conform(
 
     // The distance of the final result to the scan.
     let t = Instant::now();
-    let normals = vertex_normals(&x, &template.triangles);
-    let final_matches: Vec<_> = x
-        .par_iter()
-        .zip(&normals)
-        .map(|(p, nv)| surface.query(p, nv, &limits))
-        .collect();
+    let (final_matches, normals) = match_all(&surface, &x, &template.triangles, &limits);
     let fin = MatchSummary::of(&final_matches);
     times.correspond += t.elapsed().as_secs_f64();
     if let Some(r) = reports.last_mut() {
@@ -822,6 +812,22 @@ pub fn conform(
         seconds: times,
     };
     Ok(Conformed { mesh, report })
+}
+
+/// Every vertex's match (None: missing data), and the vertex normals used.
+fn match_all(
+    surface: &ScanSurface,
+    x: &[V3],
+    tris: &[[u32; 3]],
+    limits: &MatchLimits,
+) -> (Vec<Option<correspond::Match>>, Vec<V3>) {
+    let normals = vertex_normals(x, tris);
+    let matches = x
+        .par_iter()
+        .zip(&normals)
+        .map(|(p, nv)| surface.query(p, nv, limits))
+        .collect();
+    (matches, normals)
 }
 
 #[derive(Debug, Clone, Copy)]

@@ -9,24 +9,43 @@ use std::path::Path;
 #[derive(Debug, thiserror::Error)]
 pub enum GroupsError {
     #[error("{path}: {source}")]
-    Io { path: String, source: std::io::Error },
+    Io {
+        path: String,
+        source: std::io::Error,
+    },
     #[error("{path}: line {line}: {msg}")]
-    Line { path: String, line: usize, msg: String },
+    Line {
+        path: String,
+        line: usize,
+        msg: String,
+    },
 }
 
 /// Parses a groups file, checking every index against `vertices`.
-pub fn parse(path: &str, text: &str, vertices: usize) -> Result<BTreeMap<String, Vec<u32>>, GroupsError> {
+pub fn parse(
+    path: &str,
+    text: &str,
+    vertices: usize,
+) -> Result<BTreeMap<String, Vec<u32>>, GroupsError> {
     let mut out: BTreeMap<String, Vec<u32>> = BTreeMap::new();
     for (i, raw) in text.lines().enumerate() {
         let line = raw.split('#').next().unwrap_or("").trim();
         let mut tok = line.split_whitespace();
         let Some(name) = tok.next() else { continue };
-        let err = |msg: String| GroupsError::Line { path: path.into(), line: i + 1, msg };
+        let err = |msg: String| GroupsError::Line {
+            path: path.into(),
+            line: i + 1,
+            msg,
+        };
         let set = out.entry(name.to_string()).or_default();
         for t in tok {
-            let v: u32 = t.parse().map_err(|_| err(format!("'{t}' is not a vertex index")))?;
+            let v: u32 = t
+                .parse()
+                .map_err(|_| err(format!("'{t}' is not a vertex index")))?;
             if v as usize >= vertices {
-                return Err(err(format!("vertex {v} is out of range (the mesh has {vertices} vertices)")));
+                return Err(err(format!(
+                    "vertex {v} is out of range (the mesh has {vertices} vertices)"
+                )));
             }
             set.push(v);
         }
@@ -41,8 +60,12 @@ pub fn parse(path: &str, text: &str, vertices: usize) -> Result<BTreeMap<String,
 /// Reads a groups file for `mesh` and adds its groups (replacing same-named ones).
 pub fn read_into(path: &Path, mesh: &mut Mesh) -> Result<(), GroupsError> {
     let name = path.display().to_string();
-    let text = std::fs::read_to_string(path).map_err(|source| GroupsError::Io { path: name.clone(), source })?;
-    mesh.groups.extend(parse(&name, &text, mesh.vertices.len())?);
+    let text = std::fs::read_to_string(path).map_err(|source| GroupsError::Io {
+        path: name.clone(),
+        source,
+    })?;
+    mesh.groups
+        .extend(parse(&name, &text, mesh.vertices.len())?);
     Ok(())
 }
 
@@ -50,6 +73,11 @@ pub fn read_into(path: &Path, mesh: &mut Mesh) -> Result<(), GroupsError> {
 pub fn text(mesh: &Mesh) -> String {
     mesh.groups
         .iter()
-        .map(|(k, v)| format!("{k} {}\n", v.iter().map(u32::to_string).collect::<Vec<_>>().join(" ")))
+        .map(|(k, v)| {
+            format!(
+                "{k} {}\n",
+                v.iter().map(u32::to_string).collect::<Vec<_>>().join(" ")
+            )
+        })
         .collect()
 }

@@ -770,9 +770,15 @@ pub fn obj_bytes(mesh: &Mesh) -> String {
             let _ = writeln!(s, "vn {} {} {}", n.x, n.y, n.z);
         }
     }
-    let sets: Vec<(&String, std::collections::HashSet<u32>)> =
-        mesh.groups.iter().map(|(k, v)| (k, v.iter().copied().collect())).collect();
-    let group_of = |t: &[u32; 3]| sets.iter().position(|(_, set)| t.iter().all(|i| set.contains(i)));
+    let sets: Vec<(&String, std::collections::HashSet<u32>)> = mesh
+        .groups
+        .iter()
+        .map(|(k, v)| (k, v.iter().copied().collect()))
+        .collect();
+    let group_of = |t: &[u32; 3]| {
+        sets.iter()
+            .position(|(_, set)| t.iter().all(|i| set.contains(i)))
+    };
     let mut current = None;
     for t in &mesh.triangles {
         let g = if sets.is_empty() { None } else { group_of(t) };

@@ -204,7 +204,12 @@ pub fn non_manifold_vertices(nv: usize, tris: &[[u32; 3]]) -> usize {
             seen[0] = true;
             while let Some(e) = stack.pop() {
                 for (j, f) in edges.iter().enumerate() {
-                    if !seen[j] && (f[0] == edges[e][0] || f[0] == edges[e][1] || f[1] == edges[e][0] || f[1] == edges[e][1]) {
+                    if !seen[j]
+                        && (f[0] == edges[e][0]
+                            || f[0] == edges[e][1]
+                            || f[1] == edges[e][0]
+                            || f[1] == edges[e][1])
+                    {
                         seen[j] = true;
                         stack.push(j);
                     }
@@ -239,7 +244,11 @@ mod tests {
         assert_eq!(vertex_neighbours(4, &open.triangles)[0], vec![1, 2, 3]);
         // two tetrahedra sharing only vertex 0: that vertex is not manifold
         let mut v2 = closed.vertices.clone();
-        v2.extend([V3::new(-1., 0., 0.), V3::new(0., -1., 0.), V3::new(0., 0., -1.)]);
+        v2.extend([
+            V3::new(-1., 0., 0.),
+            V3::new(0., -1., 0.),
+            V3::new(0., 0., -1.),
+        ]);
         let mut t2 = closed.triangles.clone();
         t2.extend([[0, 4, 5], [0, 5, 6], [0, 6, 4], [4, 6, 5]]);
         let r = report(&Mesh::new(v2, t2));

@@ -19,9 +19,18 @@ pub const VERSION: u32 = 1;
 pub enum ModelError {
     #[error("a model needs at least 3 meshes, got {0}")]
     TooFew(usize),
-    #[error("{name}: it has {got} vertices, but {first} has {want}: meshes of one model must be conformed from one template")]
-    VertexCount { name: String, got: usize, first: String, want: usize },
-    #[error("{name}: its triangles differ from {first}'s: meshes of one model must be conformed from one template")]
+    #[error(
+        "{name}: it has {got} vertices, but {first} has {want}: meshes of one model must be conformed from one template"
+    )]
+    VertexCount {
+        name: String,
+        got: usize,
+        first: String,
+        want: usize,
+    },
+    #[error(
+        "{name}: its triangles differ from {first}'s: meshes of one model must be conformed from one template"
+    )]
     Topology { name: String, first: String },
     #[error("{name}: it was not conformed from this model's template ({detail})")]
     WrongTemplate { name: String, detail: String },
@@ -52,7 +61,9 @@ impl std::str::FromStr for Align {
             "procrustes" => Ok(Align::Procrustes),
             "rigid" => Ok(Align::Rigid),
             "none" => Ok(Align::None),
-            _ => Err(format!("unknown alignment '{s}' (expected procrustes, rigid or none)")),
+            _ => Err(format!(
+                "unknown alignment '{s}' (expected procrustes, rigid or none)"
+            )),
         }
     }
 }
@@ -68,7 +79,11 @@ pub struct BuildOptions {
 
 impl Default for BuildOptions {
     fn default() -> Self {
-        BuildOptions { align: Align::Procrustes, group: None, max_modes: 30 }
+        BuildOptions {
+            align: Align::Procrustes,
+            group: None,
+            max_modes: 30,
+        }
     }
 }
 
@@ -134,7 +149,9 @@ fn flatten(v: &[V3]) -> Vec<f64> {
 }
 
 fn unflatten(x: &[f64]) -> Vec<V3> {
-    x.chunks_exact(3).map(|c| V3::new(c[0], c[1], c[2])).collect()
+    x.chunks_exact(3)
+        .map(|c| V3::new(c[0], c[1], c[2]))
+        .collect()
 }
 
 fn centroid_size(v: &[V3]) -> f64 {
@@ -151,19 +168,36 @@ fn align_all(shapes: &[Vec<V3>], align: Align) -> Vec<Vec<V3>> {
     let mean_size = shapes.iter().map(|s| centroid_size(s)).sum::<f64>() / shapes.len() as f64;
     let mut mean = shapes[0].clone();
     for _ in 0..20 {
-        let aligned: Vec<Vec<V3>> = shapes.par_iter().map(|s| apply(&fit_similarity(s, &mean, None, scale), s)).collect();
-        let mut next: Vec<V3> = (0..mean.len()).map(|i| aligned.iter().map(|s| s[i]).sum::<V3>() / aligned.len() as f64).collect();
+        let aligned: Vec<Vec<V3>> = shapes
+            .par_iter()
+            .map(|s| apply(&fit_similarity(s, &mean, None, scale), s))
+            .collect();
+        let mut next: Vec<V3> = (0..mean.len())
+            .map(|i| aligned.iter().map(|s| s[i]).sum::<V3>() / aligned.len() as f64)
+            .collect();
         // keep the mean centred and, for Procrustes, at the samples' mean size
         let c = next.iter().sum::<V3>() / next.len() as f64;
-        let f = if scale { mean_size / centroid_size(&next) } else { 1.0 };
+        let f = if scale {
+            mean_size / centroid_size(&next)
+        } else {
+            1.0
+        };
         next.iter_mut().for_each(|p| *p = (*p - c) * f);
-        let change = next.iter().zip(&mean).map(|(a, b)| (a - b).norm_squared()).sum::<f64>().sqrt();
+        let change = next
+            .iter()
+            .zip(&mean)
+            .map(|(a, b)| (a - b).norm_squared())
+            .sum::<f64>()
+            .sqrt();
         mean = next;
         if change < 1e-10 * mean_size * (mean.len() as f64).sqrt() {
             break;
         }
     }
-    shapes.par_iter().map(|s| apply(&fit_similarity(s, &mean, None, scale), s)).collect()
+    shapes
+        .par_iter()
+        .map(|s| apply(&fit_similarity(s, &mean, None, scale), s))
+        .collect()
 }
 
 fn apply(t: &Similarity, v: &[V3]) -> Vec<V3> {
@@ -175,7 +209,10 @@ impl ShapeModel {
     ///
     /// - `samples`: (name, mesh) pairs, at least 3
     /// - returns the model with min(n - 1, `max_modes`) modes
-    pub fn build(samples: &[(String, Mesh)], opts: &BuildOptions) -> Result<ShapeModel, ModelError> {
+    pub fn build(
+        samples: &[(String, Mesh)],
+        opts: &BuildOptions,
+    ) -> Result<ShapeModel, ModelError> {
         if samples.len() < 3 {
             return Err(ModelError::TooFew(samples.len()));
         }
@@ -190,17 +227,31 @@ impl ShapeModel {
                 });
             }
             if m.triangles != first.triangles {
-                return Err(ModelError::Topology { name: name.clone(), first: first_name.clone() });
+                return Err(ModelError::Topology {
+                    name: name.clone(),
+                    first: first_name.clone(),
+                });
             }
-            if let Some(v) = m.vertices.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
-                return Err(ModelError::NotFinite { name: name.clone(), vertex: v });
+            if let Some(v) = m
+                .vertices
+                .iter()
+                .position(|p| !p.iter().all(|c| c.is_finite()))
+            {
+                return Err(ModelError::NotFinite {
+                    name: name.clone(),
+                    vertex: v,
+                });
             }
         }
         let indices: Vec<u32> = match &opts.group {
-            Some(g) => first.groups.get(g).cloned().ok_or_else(|| ModelError::NoGroup {
-                group: g.clone(),
-                known: first.groups.keys().cloned().collect::<Vec<_>>().join(", "),
-            })?,
+            Some(g) => first
+                .groups
+                .get(g)
+                .cloned()
+                .ok_or_else(|| ModelError::NoGroup {
+                    group: g.clone(),
+                    known: first.groups.keys().cloned().collect::<Vec<_>>().join(", "),
+                })?,
             None => (0..first.vertices.len() as u32).collect(),
         };
         let mut local = vec![u32::MAX; first.vertices.len()];
@@ -213,19 +264,33 @@ impl ShapeModel {
             .filter(|t| t.iter().all(|&i| local[i as usize] != u32::MAX))
             .map(|t| t.map(|i| local[i as usize]))
             .collect();
-        let shapes: Vec<Vec<V3>> =
-            samples.iter().map(|(_, m)| indices.iter().map(|&i| m.vertices[i as usize]).collect()).collect();
+        let shapes: Vec<Vec<V3>> = samples
+            .iter()
+            .map(|(_, m)| indices.iter().map(|&i| m.vertices[i as usize]).collect())
+            .collect();
         let aligned = align_all(&shapes, opts.align);
         let n = aligned.len();
         let dim = indices.len() * 3;
         let rows: Vec<Vec<f64>> = aligned.iter().map(|s| flatten(s)).collect();
-        let mean: Vec<f64> = (0..dim).map(|j| rows.iter().map(|r| r[j]).sum::<f64>() / n as f64).collect();
-        let centred: Vec<Vec<f64>> = rows.iter().map(|r| r.iter().zip(&mean).map(|(a, b)| a - b).collect()).collect();
+        let mean: Vec<f64> = (0..dim)
+            .map(|j| rows.iter().map(|r| r[j]).sum::<f64>() / n as f64)
+            .collect();
+        let centred: Vec<Vec<f64>> = rows
+            .iter()
+            .map(|r| r.iter().zip(&mean).map(|(a, b)| a - b).collect())
+            .collect();
         // Gram matrix G = X X^T / (n - 1): n x n instead of dim x dim
         let pairs: Vec<(usize, usize)> = (0..n).flat_map(|i| (i..n).map(move |j| (i, j))).collect();
         let dots: Vec<f64> = pairs
             .par_iter()
-            .map(|&(i, j)| centred[i].iter().zip(&centred[j]).map(|(a, b)| a * b).sum::<f64>() / (n - 1) as f64)
+            .map(|&(i, j)| {
+                centred[i]
+                    .iter()
+                    .zip(&centred[j])
+                    .map(|(a, b)| a * b)
+                    .sum::<f64>()
+                    / (n - 1) as f64
+            })
             .collect();
         let mut g = DMatrix::<f64>::zeros(n, n);
         for (&(i, j), &d) in pairs.iter().zip(&dots) {
@@ -298,30 +363,64 @@ impl ShapeModel {
         if mesh.vertices.len() != self.template_vertices {
             return Err(ModelError::WrongTemplate {
                 name: name.into(),
-                detail: format!("it has {} vertices, the model's template {}", mesh.vertices.len(), self.template_vertices),
+                detail: format!(
+                    "it has {} vertices, the model's template {}",
+                    mesh.vertices.len(),
+                    self.template_vertices
+                ),
             });
         }
-        if !mesh.triangles.is_empty() && fingerprint(mesh.vertices.len(), &mesh.triangles) != self.template_fingerprint {
-            return Err(ModelError::WrongTemplate { name: name.into(), detail: "its triangles differ".into() });
+        if !mesh.triangles.is_empty()
+            && fingerprint(mesh.vertices.len(), &mesh.triangles) != self.template_fingerprint
+        {
+            return Err(ModelError::WrongTemplate {
+                name: name.into(),
+                detail: "its triangles differ".into(),
+            });
         }
-        if let Some(v) = mesh.vertices.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
-            return Err(ModelError::NotFinite { name: name.into(), vertex: v });
+        if let Some(v) = mesh
+            .vertices
+            .iter()
+            .position(|p| !p.iter().all(|c| c.is_finite()))
+        {
+            return Err(ModelError::NotFinite {
+                name: name.into(),
+                vertex: v,
+            });
         }
-        let pts: Vec<V3> = self.indices.iter().map(|&i| mesh.vertices[i as usize]).collect();
+        let pts: Vec<V3> = self
+            .indices
+            .iter()
+            .map(|&i| mesh.vertices[i as usize])
+            .collect();
         let mean = self.mean_shape();
         let aligned = match self.align {
             Align::None => pts,
-            a => apply(&fit_similarity(&pts, &mean, None, a == Align::Procrustes), &pts),
+            a => apply(
+                &fit_similarity(&pts, &mean, None, a == Align::Procrustes),
+                &pts,
+            ),
         };
-        let d: Vec<f64> = flatten(&aligned).iter().zip(&self.mean).map(|(a, b)| a - b).collect();
-        let scores: Vec<f64> =
-            self.modes.iter().map(|m| m.iter().zip(&d).map(|(&a, b)| a as f64 * b).sum()).collect();
+        let d: Vec<f64> = flatten(&aligned)
+            .iter()
+            .zip(&self.mean)
+            .map(|(a, b)| a - b)
+            .collect();
+        let scores: Vec<f64> = self
+            .modes
+            .iter()
+            .map(|m| m.iter().zip(&d).map(|(&a, b)| a as f64 * b).sum())
+            .collect();
         let mut r = d.clone();
         for (m, &b) in self.modes.iter().zip(&scores) {
             r.iter_mut().zip(m).for_each(|(x, &c)| *x -= b * c as f64);
         }
         let residual = (r.iter().map(|x| x * x).sum::<f64>() / self.indices.len() as f64).sqrt();
-        let scores_sd: Vec<f64> = scores.iter().zip(&self.variances).map(|(b, v)| b / v.sqrt().max(1e-300)).collect();
+        let scores_sd: Vec<f64> = scores
+            .iter()
+            .zip(&self.variances)
+            .map(|(b, v)| b / v.sqrt().max(1e-300))
+            .collect();
         Ok(Score {
             name: name.into(),
             mahalanobis: scores_sd.iter().map(|z| z * z).sum::<f64>().sqrt(),
@@ -333,24 +432,41 @@ impl ShapeModel {
 
     /// Checks the file's format, version and sizes.
     pub fn validate(&self, path: &str) -> Result<(), ModelError> {
-        let bad = |msg: String| Err(ModelError::File { path: path.into(), msg });
+        let bad = |msg: String| {
+            Err(ModelError::File {
+                path: path.into(),
+                msg,
+            })
+        };
         if self.format != FORMAT {
             return bad(format!("format is '{}', expected '{FORMAT}'", self.format));
         }
         if self.version != VERSION {
-            return bad(format!("version {} is not supported (this conformd reads version {VERSION})", self.version));
+            return bad(format!(
+                "version {} is not supported (this conformd reads version {VERSION})",
+                self.version
+            ));
         }
         let dim = self.indices.len() * 3;
         if self.mean.len() != dim {
-            return bad(format!("the mean has {} coordinates, expected {dim}", self.mean.len()));
+            return bad(format!(
+                "the mean has {} coordinates, expected {dim}",
+                self.mean.len()
+            ));
         }
         if self.modes.len() != self.variances.len() || self.modes.iter().any(|m| m.len() != dim) {
             return bad("mode sizes do not match the mean or the variances".into());
         }
-        if self.indices.iter().any(|&i| i as usize >= self.template_vertices) {
+        if self
+            .indices
+            .iter()
+            .any(|&i| i as usize >= self.template_vertices)
+        {
             return bad("a vertex index exceeds the template".into());
         }
-        if !self.mean.iter().all(|x| x.is_finite()) || !self.variances.iter().all(|x| x.is_finite() && *x >= 0.0) {
+        if !self.mean.iter().all(|x| x.is_finite())
+            || !self.variances.iter().all(|x| x.is_finite() && *x >= 0.0)
+        {
             return bad("non-finite numbers".into());
         }
         Ok(())
@@ -363,9 +479,14 @@ impl ShapeModel {
 
     pub fn load(path: &std::path::Path) -> Result<ShapeModel, ModelError> {
         let name = path.display().to_string();
-        let bytes = std::fs::read(path).map_err(|e| ModelError::File { path: name.clone(), msg: e.to_string() })?;
-        let m: ShapeModel =
-            serde_json::from_slice(&bytes).map_err(|e| ModelError::File { path: name.clone(), msg: e.to_string() })?;
+        let bytes = std::fs::read(path).map_err(|e| ModelError::File {
+            path: name.clone(),
+            msg: e.to_string(),
+        })?;
+        let m: ShapeModel = serde_json::from_slice(&bytes).map_err(|e| ModelError::File {
+            path: name.clone(),
+            msg: e.to_string(),
+        })?;
         m.validate(&name)?;
         Ok(m)
     }
@@ -383,44 +504,73 @@ pub struct Quality {
     pub specificity: Vec<f64>,
 }
 
-pub fn quality(samples: &[(String, Mesh)], opts: &BuildOptions, max_k: usize, seed: u64) -> Result<Quality, ModelError> {
+pub fn quality(
+    samples: &[(String, Mesh)],
+    opts: &BuildOptions,
+    max_k: usize,
+    seed: u64,
+) -> Result<Quality, ModelError> {
     let full = ShapeModel::build(samples, opts)?;
     let kmax = max_k.min(full.modes.len()).max(1);
     let ks: Vec<usize> = (1..=kmax).collect();
     let mut cum = 0.0;
-    let compactness = full.explained.iter().take(kmax).map(|e| {
-        cum += e;
-        cum
-    }).collect();
+    let compactness = full
+        .explained
+        .iter()
+        .take(kmax)
+        .map(|e| {
+            cum += e;
+            cum
+        })
+        .collect();
     // generalisation: leave one out, reconstruct it with k modes
     let loo: Vec<Vec<f64>> = (0..samples.len())
         .into_par_iter()
         .map(|i| {
-            let rest: Vec<(String, Mesh)> = samples.iter().enumerate().filter(|(j, _)| *j != i).map(|(_, s)| s.clone()).collect();
-            let m = match ShapeModel::build(&rest, &BuildOptions { max_modes: kmax, ..opts.clone() }) {
+            let rest: Vec<(String, Mesh)> = samples
+                .iter()
+                .enumerate()
+                .filter(|(j, _)| *j != i)
+                .map(|(_, s)| s.clone())
+                .collect();
+            let m = match ShapeModel::build(
+                &rest,
+                &BuildOptions {
+                    max_modes: kmax,
+                    ..opts.clone()
+                },
+            ) {
                 Ok(m) => m,
                 Err(_) => return vec![f64::NAN; kmax],
             };
-            let s = m.score(&samples[i].0, &samples[i].1).expect("same template");
+            let s = m
+                .score(&samples[i].0, &samples[i].1)
+                .expect("same template");
             ks.iter()
                 .map(|&k| {
                     let k = k.min(m.modes.len());
                     let target = m.instance(&s.scores); // all modes: the aligned sample minus residual
                     let recon = m.instance(&s.scores[..k]);
-                    let d2: f64 = target.iter().zip(&recon).map(|(a, b)| (a - b).norm_squared()).sum();
+                    let d2: f64 = target
+                        .iter()
+                        .zip(&recon)
+                        .map(|(a, b)| (a - b).norm_squared())
+                        .sum();
                     (d2 / recon.len() as f64 + s.residual * s.residual).sqrt()
                 })
                 .collect()
         })
         .collect();
-    let generalisation = (0..kmax).map(|k| loo.iter().map(|l| l[k]).sum::<f64>() / loo.len() as f64).collect();
+    let generalisation = (0..kmax)
+        .map(|k| loo.iter().map(|l| l[k]).sum::<f64>() / loo.len() as f64)
+        .collect();
     // specificity: random instances against the aligned training shapes
     let train: Vec<Vec<V3>> = samples
         .iter()
         .map(|(n, m)| {
             let s = full.score(n, m).expect("same template");
-            let recon = full.instance(&s.scores);
-            recon
+
+            full.instance(&s.scores)
         })
         .collect();
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
@@ -437,12 +587,24 @@ pub fn quality(samples: &[(String, Mesh)], opts: &BuildOptions, max_k: usize, se
                     let x = full.instance(&b);
                     train
                         .iter()
-                        .map(|t| (t.iter().zip(&x).map(|(a, b)| (a - b).norm_squared()).sum::<f64>() / x.len() as f64).sqrt())
+                        .map(|t| {
+                            (t.iter()
+                                .zip(&x)
+                                .map(|(a, b)| (a - b).norm_squared())
+                                .sum::<f64>()
+                                / x.len() as f64)
+                                .sqrt()
+                        })
                         .fold(f64::INFINITY, f64::min)
                 })
                 .sum::<f64>()
                 / draws as f64
         })
         .collect();
-    Ok(Quality { modes: ks, compactness, generalisation, specificity })
+    Ok(Quality {
+        modes: ks,
+        compactness,
+        generalisation,
+        specificity,
+    })
 }

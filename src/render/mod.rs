@@ -42,7 +42,12 @@ pub enum Colouring {
     Groups,
     /// one value per vertex mapped through a colour map over [min, max], with a colour
     /// bar labelled with the range and `unit`
-    Values { values: Vec<f64>, min: f64, max: f64, unit: String },
+    Values {
+        values: Vec<f64>,
+        min: f64,
+        max: f64,
+        unit: String,
+    },
 }
 
 #[derive(Debug, Clone)]
@@ -58,23 +63,42 @@ impl Default for RenderOptions {
         RenderOptions {
             width: 800,
             height: 600,
-            views: vec![View::named("three-quarter").unwrap(), View::named("side").unwrap()],
+            views: vec![
+                View::named("three-quarter").unwrap(),
+                View::named("side").unwrap(),
+            ],
             background: [250, 250, 250],
         }
     }
 }
 
 const PALETTE: [[u8; 3]; 10] = [
-    [86, 140, 200], [230, 140, 60], [90, 175, 90], [205, 85, 85], [150, 115, 190],
-    [150, 110, 90], [220, 130, 180], [140, 140, 140], [190, 190, 70], [70, 190, 200],
+    [86, 140, 200],
+    [230, 140, 60],
+    [90, 175, 90],
+    [205, 85, 85],
+    [150, 115, 190],
+    [150, 110, 90],
+    [220, 130, 180],
+    [140, 140, 140],
+    [190, 190, 70],
+    [70, 190, 200],
 ];
 
 /// A viridis-like map of t in [0, 1].
 pub fn colour_map(t: f64) -> [u8; 3] {
     const STOPS: [[f64; 3]; 5] = [
-        [68.0, 1.0, 84.0], [59.0, 82.0, 139.0], [33.0, 145.0, 140.0], [94.0, 201.0, 98.0], [253.0, 231.0, 37.0],
+        [68.0, 1.0, 84.0],
+        [59.0, 82.0, 139.0],
+        [33.0, 145.0, 140.0],
+        [94.0, 201.0, 98.0],
+        [253.0, 231.0, 37.0],
     ];
-    let t = if t.is_finite() { t.clamp(0.0, 1.0) } else { 0.0 } * 4.0;
+    let t = if t.is_finite() {
+        t.clamp(0.0, 1.0)
+    } else {
+        0.0
+    } * 4.0;
     let i = (t.floor() as usize).min(3);
     let f = t - i as f64;
     std::array::from_fn(|c| (STOPS[i][c] * (1.0 - f) + STOPS[i + 1][c] * f).round() as u8)
@@ -82,7 +106,13 @@ pub fn colour_map(t: f64) -> [u8; 3] {
 
 fn vertex_colours(mesh: &Mesh, colouring: &Colouring) -> Vec<[f64; 3]> {
     let n = mesh.vertices.len();
-    let to_f = |c: [u8; 3]| [c[0] as f64 / 255.0, c[1] as f64 / 255.0, c[2] as f64 / 255.0];
+    let to_f = |c: [u8; 3]| {
+        [
+            c[0] as f64 / 255.0,
+            c[1] as f64 / 255.0,
+            c[2] as f64 / 255.0,
+        ]
+    };
     match colouring {
         Colouring::Plain => vec![to_f([200, 190, 175]); n],
         Colouring::Groups => {
@@ -98,9 +128,17 @@ fn vertex_colours(mesh: &Mesh, colouring: &Colouring) -> Vec<[f64; 3]> {
             }
             c
         }
-        Colouring::Values { values, min, max, .. } => {
+        Colouring::Values {
+            values, min, max, ..
+        } => {
             let span = (max - min).abs().max(1e-300);
-            (0..n).map(|i| to_f(colour_map((values.get(i).copied().unwrap_or(*min) - min) / span))).collect()
+            (0..n)
+                .map(|i| {
+                    to_f(colour_map(
+                        (values.get(i).copied().unwrap_or(*min) - min) / span,
+                    ))
+                })
+                .collect()
         }
     }
 }
@@ -113,18 +151,43 @@ pub fn render(mesh: &Mesh, colouring: &Colouring, opts: &RenderOptions) -> RgbIm
     let mut img = RgbImage::from_pixel(opts.width.max(1), opts.height.max(1), Rgb(opts.background));
     let bar = matches!(colouring, Colouring::Values { .. });
     let bar_w = if bar { 90.min(opts.width / 4) } else { 0 };
-    let views = if opts.views.is_empty() { vec![View::named("three-quarter").unwrap()] } else { opts.views.clone() };
+    let views = if opts.views.is_empty() {
+        vec![View::named("three-quarter").unwrap()]
+    } else {
+        opts.views.clone()
+    };
     let panel_w = (opts.width - bar_w) / views.len() as u32;
     let colours = vertex_colours(mesh, colouring);
     let normals = mesh.vertex_normals();
-    let Some((lo, hi)) = mesh.bounding_box() else { return img };
+    let Some((lo, hi)) = mesh.bounding_box() else {
+        return img;
+    };
     let centre = (lo + hi) / 2.0;
     let radius = ((hi - lo).norm() / 2.0).max(1e-300);
     for (k, view) in views.iter().enumerate() {
-        draw_view(&mut img, mesh, &colours, &normals, centre, radius, view, k as u32 * panel_w, panel_w, opts.height);
+        draw_view(
+            &mut img,
+            mesh,
+            &colours,
+            &normals,
+            centre,
+            radius,
+            view,
+            k as u32 * panel_w,
+            panel_w,
+            opts.height,
+        );
     }
     if let Colouring::Values { min, max, unit, .. } = colouring {
-        draw_colour_bar(&mut img, opts.width - bar_w, bar_w, opts.height, *min, *max, unit);
+        draw_colour_bar(
+            &mut img,
+            opts.width - bar_w,
+            bar_w,
+            opts.height,
+            *min,
+            *max,
+            unit,
+        );
     }
     img
 }
@@ -218,7 +281,13 @@ fn draw_colour_bar(img: &mut RgbImage, x0: u32, w: u32, h: u32, min: f64, max: f
             img.put_pixel(x, y, Rgb(c));
         }
     }
-    let label = |v: f64| if v.abs() >= 1e-2 && v.abs() < 1e4 || v == 0.0 { format!("{v:.3}") } else { format!("{v:.2e}") };
+    let label = |v: f64| {
+        if v.abs() >= 1e-2 && v.abs() < 1e4 || v == 0.0 {
+            format!("{v:.3}")
+        } else {
+            format!("{v:.2e}")
+        }
+    };
     font::draw(img, bx1 + 4, top, &label(max), [30, 30, 30], 2);
     font::draw(img, bx1 + 4, bottom - 10, &label(min), [30, 30, 30], 2);
     font::draw(img, bx0, bottom + 8, unit, [30, 30, 30], 2);
@@ -227,15 +296,23 @@ fn draw_colour_bar(img: &mut RgbImage, x0: u32, w: u32, h: u32, min: f64, max: f
 /// Writes an image as PNG, atomically.
 pub fn save_png(img: &RgbImage, path: &std::path::Path) -> Result<(), crate::mesh::MeshError> {
     let mut bytes = Vec::new();
-    img.write_to(&mut std::io::Cursor::new(&mut bytes), image::ImageFormat::Png)
-        .map_err(|e| crate::mesh::MeshError::Content { path: path.display().to_string(), msg: e.to_string() })?;
+    img.write_to(
+        &mut std::io::Cursor::new(&mut bytes),
+        image::ImageFormat::Png,
+    )
+    .map_err(|e| crate::mesh::MeshError::Content {
+        path: path.display().to_string(),
+        msg: e.to_string(),
+    })?;
     crate::mesh::io::write_atomic(path, &bytes)
 }
 
 /// Places images in a grid (row-major), each cell the size of the first image; an
 /// optional label is drawn at the top left of each cell.
 pub fn sheet(cells: &[(RgbImage, String)], columns: usize, background: [u8; 3]) -> RgbImage {
-    let Some((first, _)) = cells.first() else { return RgbImage::new(1, 1) };
+    let Some((first, _)) = cells.first() else {
+        return RgbImage::new(1, 1);
+    };
     let (cw, ch) = first.dimensions();
     let cols = columns.max(1) as u32;
     let rows = cells.len().div_ceil(columns.max(1)) as u32;

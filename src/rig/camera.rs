@@ -60,7 +60,14 @@ pub struct CameraSettings {
 
 impl Default for CameraSettings {
     fn default() -> Self {
-        CameraSettings { format: PixelFormat::Mjpg, width: 1280, height: 960, exposure_us: None, gain: None, external_trigger: false }
+        CameraSettings {
+            format: PixelFormat::Mjpg,
+            width: 1280,
+            height: 960,
+            exposure_us: None,
+            gain: None,
+            external_trigger: false,
+        }
     }
 }
 
@@ -99,8 +106,14 @@ impl Frame {
     pub fn encode(&self) -> Result<Vec<u8>, String> {
         let png = |ct: image::ExtendedColorType, px: &[u8]| -> Result<Vec<u8>, String> {
             let mut out = Vec::new();
-            image::ImageEncoder::write_image(image::codecs::png::PngEncoder::new(&mut out), px, self.width, self.height, ct)
-                .map_err(|e| format!("camera {}: encoding the frame: {e}", self.camera))?;
+            image::ImageEncoder::write_image(
+                image::codecs::png::PngEncoder::new(&mut out),
+                px,
+                self.width,
+                self.height,
+                ct,
+            )
+            .map_err(|e| format!("camera {}: encoding the frame: {e}", self.camera))?;
             Ok(out)
         };
         match &self.data {
@@ -116,7 +129,11 @@ pub enum CameraError {
     #[error("camera {camera}: no frame within {waited_ms} ms")]
     Timeout { camera: String, waited_ms: u64 },
     #[error("camera {camera}: frame {expected} was lost (the next one was {got})")]
-    LostFrame { camera: String, expected: u32, got: u32 },
+    LostFrame {
+        camera: String,
+        expected: u32,
+        got: u32,
+    },
     #[error("camera {camera}: {msg}")]
     Device { camera: String, msg: String },
     #[error("camera {camera}: {msg}")]
@@ -140,9 +157,13 @@ pub trait Camera: Send {
 /// Reads an image file into frame pixels: JPEG kept as is, anything else decoded to
 /// grey or RGB.
 pub fn frame_from_file(camera: &str, path: &Path) -> Result<(u32, u32, FrameData), CameraError> {
-    let err = |msg: String| CameraError::Device { camera: camera.into(), msg };
+    let err = |msg: String| CameraError::Device {
+        camera: camera.into(),
+        msg,
+    };
     let bytes = std::fs::read(path).map_err(|e| err(format!("{}: {e}", path.display())))?;
-    let img = image::load_from_memory(&bytes).map_err(|e| err(format!("{}: not a readable image: {e}", path.display())))?;
+    let img = image::load_from_memory(&bytes)
+        .map_err(|e| err(format!("{}: not a readable image: {e}", path.display())))?;
     let (w, h) = (img.width(), img.height());
     let is_jpeg = bytes.starts_with(&[0xff, 0xd8]);
     let data = if is_jpeg {

@@ -76,7 +76,14 @@ pub struct CaptureOptions {
 
 impl Default for CaptureOptions {
     fn default() -> Self {
-        CaptureOptions { station: "station".into(), window_ms: 2000, max_skew_ms: 5.0, retries: 1, keep_failed: false, exposure_us: 8000 }
+        CaptureOptions {
+            station: "station".into(),
+            window_ms: 2000,
+            max_skew_ms: 5.0,
+            retries: 1,
+            keep_failed: false,
+            exposure_us: 8000,
+        }
     }
 }
 
@@ -87,11 +94,18 @@ pub enum CaptureError {
     #[error(transparent)]
     Trigger(#[from] TriggerError),
     #[error("sensor timestamps spread {spread_ms:.2} ms (at most {max_ms} ms): {detail}")]
-    Skew { spread_ms: f64, max_ms: f64, detail: String },
+    Skew {
+        spread_ms: f64,
+        max_ms: f64,
+        detail: String,
+    },
     #[error("writing {path}: {msg}")]
     Write { path: String, msg: String },
     #[error("capture failed {attempts} times; last: {last}")]
-    GaveUp { attempts: u32, last: Box<CaptureError> },
+    GaveUp {
+        attempts: u32,
+        last: Box<CaptureError>,
+    },
 }
 
 /// `manifest.json` of a capture set (layout in DESIGN.md).
@@ -134,11 +148,18 @@ impl Manifest {
     /// Reads and checks a set's manifest.
     pub fn read(dir: &Path) -> Result<Manifest, CaptureError> {
         let p = dir.join("manifest.json");
-        let err = |msg: String| CaptureError::Write { path: p.display().to_string(), msg };
+        let err = |msg: String| CaptureError::Write {
+            path: p.display().to_string(),
+            msg,
+        };
         let bytes = std::fs::read(&p).map_err(|e| err(e.to_string()))?;
-        let m: Manifest = serde_json::from_slice(&bytes).map_err(|e| err(format!("not a valid manifest: {e}")))?;
+        let m: Manifest = serde_json::from_slice(&bytes)
+            .map_err(|e| err(format!("not a valid manifest: {e}")))?;
         if m.format != Self::FORMAT || m.version != 1 {
-            return Err(err(format!("format {} version {} is not conformd-capture 1", m.format, m.version)));
+            return Err(err(format!(
+                "format {} version {} is not conformd-capture 1",
+                m.format, m.version
+            )));
         }
         Ok(m)
     }
@@ -204,8 +225,23 @@ pub struct CaptureSet {
 }
 
 impl Session {
-    pub fn new(cameras: Vec<Box<dyn Camera>>, trigger: Box<dyn Trigger + Send>, root: &Path, options: CaptureOptions, settings: CameraSettings) -> Self {
-        Session { cameras, trigger, root: root.to_path_buf(), options, settings, sequence: 0, last_id: String::new(), counter: 0 }
+    pub fn new(
+        cameras: Vec<Box<dyn Camera>>,
+        trigger: Box<dyn Trigger + Send>,
+        root: &Path,
+        options: CaptureOptions,
+        settings: CameraSettings,
+    ) -> Self {
+        Session {
+            cameras,
+            trigger,
+            root: root.to_path_buf(),
+            options,
+            settings,
+            sequence: 0,
+            last_id: String::new(),
+            counter: 0,
+        }
     }
 
     /// Configures every camera once.
@@ -219,7 +255,11 @@ impl Session {
     /// A new capture id: UTC time, then a counter, unique per station and time-ordered.
     pub fn next_id(&mut self) -> String {
         let stamp = utc_stamp(SystemTime::now());
-        self.counter = if stamp == self.last_id { self.counter + 1 } else { 0 };
+        self.counter = if stamp == self.last_id {
+            self.counter + 1
+        } else {
+            0
+        };
         self.last_id = stamp.clone();
         loop {
             let id = format!("{stamp}-{:03}", self.counter);
@@ -247,7 +287,10 @@ impl Session {
         if attempts == 1 {
             return Err(last);
         }
-        Err(CaptureError::GaveUp { attempts, last: Box::new(last) })
+        Err(CaptureError::GaveUp {
+            attempts,
+            last: Box::new(last),
+        })
     }
 
     fn attempt(&mut self, subject: Option<&str>) -> Result<CaptureSet, CaptureError> {
@@ -284,16 +327,27 @@ impl Session {
         Ok((frames, box_time))
     }
 
-    fn write(&self, id: &str, subject: Option<&str>, started: SystemTime, frames: &[Frame], box_time: Option<u64>) -> Result<CaptureSet, CaptureError> {
+    fn write(
+        &self,
+        id: &str,
+        subject: Option<&str>,
+        started: SystemTime,
+        frames: &[Frame],
+        box_time: Option<u64>,
+    ) -> Result<CaptureSet, CaptureError> {
         let partial = self.root.join(format!(".{id}.partial"));
-        let werr = |p: &Path, e: &dyn std::fmt::Display| CaptureError::Write { path: p.display().to_string(), msg: e.to_string() };
+        let werr = |p: &Path, e: &dyn std::fmt::Display| CaptureError::Write {
+            path: p.display().to_string(),
+            msg: e.to_string(),
+        };
         std::fs::create_dir_all(&partial).map_err(|e| werr(&partial, &e))?;
         let mut cameras = Vec::new();
         for (f, c) in frames.iter().zip(&self.cameras) {
             let info = c.info();
             let file = format!("{}.{}", info.id, f.extension());
             let bytes = f.encode().map_err(|e| werr(&partial.join(&file), &e))?;
-            write_synced(&partial.join(&file), &bytes).map_err(|e| werr(&partial.join(&file), &e))?;
+            write_synced(&partial.join(&file), &bytes)
+                .map_err(|e| werr(&partial.join(&file), &e))?;
             cameras.push(CameraRecord {
                 id: info.id.clone(),
                 pod: info.pod.clone(),
@@ -314,7 +368,11 @@ impl Session {
             subject: subject.map(str::to_string),
             started_utc: utc_stamp(started),
             finished_utc: utc_stamp(SystemTime::now()),
-            trigger: TriggerRecord { kind: self.trigger.kind().into(), sequence: self.sequence, box_time_us: box_time },
+            trigger: TriggerRecord {
+                kind: self.trigger.kind().into(),
+                sequence: self.sequence,
+                box_time_us: box_time,
+            },
             cameras,
         };
         // the manifest last: a set without one is incomplete
@@ -325,7 +383,12 @@ impl Session {
         let dir = self.root.join(id);
         std::fs::rename(&partial, &dir).map_err(|e| werr(&dir, &e))?;
         sync_dir(&self.root);
-        Ok(CaptureSet { id: id.into(), dir, manifest, attempts: 1 })
+        Ok(CaptureSet {
+            id: id.into(),
+            dir,
+            manifest,
+            attempts: 1,
+        })
     }
 
     /// Removes a failed attempt's partial set, or keeps it under `failed/<id>/` with
@@ -349,12 +412,19 @@ impl Session {
 }
 
 fn check_skew(frames: &[Frame], max_ms: f64) -> Result<(), CaptureError> {
-    let (Some(lo), Some(hi)) = (frames.iter().min_by_key(|f| f.sensor_time), frames.iter().max_by_key(|f| f.sensor_time)) else {
+    let (Some(lo), Some(hi)) = (
+        frames.iter().min_by_key(|f| f.sensor_time),
+        frames.iter().max_by_key(|f| f.sensor_time),
+    ) else {
         return Ok(());
     };
     let spread_ms = (hi.sensor_time - lo.sensor_time).as_secs_f64() * 1000.0;
     if spread_ms > max_ms {
-        return Err(CaptureError::Skew { spread_ms, max_ms, detail: format!("{} is {spread_ms:.2} ms after {}", hi.camera, lo.camera) });
+        return Err(CaptureError::Skew {
+            spread_ms,
+            max_ms,
+            detail: format!("{} is {spread_ms:.2} ms after {}", hi.camera, lo.camera),
+        });
     }
     Ok(())
 }
@@ -367,6 +437,9 @@ mod tests {
     fn utc_stamps_are_civil_dates() {
         let t = UNIX_EPOCH + Duration::from_millis(1_795_313_106_789); // 2026-11-22T02:05:06.789Z
         assert_eq!(utc_stamp(t), "20261122T020506.789Z");
-        assert_eq!(utc_stamp(UNIX_EPOCH + Duration::from_secs(951_782_400)), "20000229T000000.000Z");
+        assert_eq!(
+            utc_stamp(UNIX_EPOCH + Duration::from_secs(951_782_400)),
+            "20000229T000000.000Z"
+        );
     }
 }

@@ -2,7 +2,9 @@
 //! memory), with injectable latency, timeouts, lost frames, skew and device failures, so
 //! every failure path of a capture session can be tested without hardware.
 
-use super::camera::{Camera, CameraError, CameraInfo, CameraSettings, Frame, FrameData, frame_from_file};
+use super::camera::{
+    Camera, CameraError, CameraInfo, CameraSettings, Frame, FrameData, frame_from_file,
+};
 use std::collections::BTreeMap;
 use std::path::Path;
 use std::time::{Duration, Instant};
@@ -61,7 +63,9 @@ impl ReplayCamera {
 
     /// A camera showing a flat grey test image.
     pub fn synthetic(info: CameraInfo, width: u32, height: u32) -> Self {
-        let px: Vec<u8> = (0..width * height).map(|i| ((i % width) * 255 / width.max(1)) as u8).collect();
+        let px: Vec<u8> = (0..width * height)
+            .map(|i| ((i % width) * 255 / width.max(1)) as u8)
+            .collect();
         ReplayCamera::new(info, vec![(width, height, FrameData::Gray8(px))])
     }
 
@@ -70,11 +74,21 @@ impl ReplayCamera {
     pub fn from_capture_sets(info: CameraInfo, sets: &[&Path]) -> Result<Self, CameraError> {
         let mut frames = Vec::new();
         for dir in sets {
-            let m = super::capture::Manifest::read(dir).map_err(|e| CameraError::Device { camera: info.id.clone(), msg: e.to_string() })?;
-            let entry = m.cameras.iter().find(|c| c.id == info.id).ok_or_else(|| CameraError::Device {
+            let m = super::capture::Manifest::read(dir).map_err(|e| CameraError::Device {
                 camera: info.id.clone(),
-                msg: format!("{}: the capture set has no image from this camera", dir.display()),
+                msg: e.to_string(),
             })?;
+            let entry =
+                m.cameras
+                    .iter()
+                    .find(|c| c.id == info.id)
+                    .ok_or_else(|| CameraError::Device {
+                        camera: info.id.clone(),
+                        msg: format!(
+                            "{}: the capture set has no image from this camera",
+                            dir.display()
+                        ),
+                    })?;
             frames.push(frame_from_file(&info.id, &dir.join(&entry.file))?);
         }
         Ok(ReplayCamera::new(info, frames))
@@ -93,13 +107,16 @@ impl Camera for ReplayCamera {
     }
 
     fn configure(&mut self, s: &CameraSettings) -> Result<(), CameraError> {
-        if let Some((w, h, _)) = self.frames.first() {
-            if (s.width, s.height) != (*w, *h) {
-                return Err(CameraError::Settings {
-                    camera: self.info.id.clone(),
-                    msg: format!("{}x{} was asked for; the recorded frames are {w}x{h}", s.width, s.height),
-                });
-            }
+        if let Some((w, h, _)) = self.frames.first()
+            && (s.width, s.height) != (*w, *h)
+        {
+            return Err(CameraError::Settings {
+                camera: self.info.id.clone(),
+                msg: format!(
+                    "{}x{} was asked for; the recorded frames are {w}x{h}",
+                    s.width, s.height
+                ),
+            });
         }
         self.exposure_us = s.exposure_us;
         Ok(())
@@ -107,7 +124,10 @@ impl Camera for ReplayCamera {
 
     fn arm(&mut self) -> Result<(), CameraError> {
         if self.frames.is_empty() {
-            return Err(CameraError::Device { camera: self.info.id.clone(), msg: "no frames to replay".into() });
+            return Err(CameraError::Device {
+                camera: self.info.id.clone(),
+                msg: "no frames to replay".into(),
+            });
         }
         self.armed = true;
         self.armed_at = Instant::now();
@@ -118,7 +138,10 @@ impl Camera for ReplayCamera {
         let n = self.grabs;
         self.grabs += 1;
         if !self.armed {
-            return Err(CameraError::Device { camera: self.info.id.clone(), msg: "grab before arm".into() });
+            return Err(CameraError::Device {
+                camera: self.info.id.clone(),
+                msg: "grab before arm".into(),
+            });
         }
         let fault = self.faults.get(&n).cloned();
         let start = Instant::now();
@@ -133,16 +156,31 @@ impl Camera for ReplayCamera {
         std::thread::sleep(ready.saturating_duration_since(Instant::now()));
         if let Some(Fault::Device(msg)) = &fault {
             self.armed = false;
-            return Err(CameraError::Device { camera: self.info.id.clone(), msg: msg.clone() });
+            return Err(CameraError::Device {
+                camera: self.info.id.clone(),
+                msg: msg.clone(),
+            });
         }
         let expected = self.sequence;
-        self.sequence += if matches!(fault, Some(Fault::LostFrame)) { 2 } else { 1 };
+        self.sequence += if matches!(fault, Some(Fault::LostFrame)) {
+            2
+        } else {
+            1
+        };
         if matches!(fault, Some(Fault::LostFrame)) {
-            return Err(CameraError::LostFrame { camera: self.info.id.clone(), expected, got: expected + 1 });
+            return Err(CameraError::LostFrame {
+                camera: self.info.id.clone(),
+                expected,
+                got: expected + 1,
+            });
         }
         let (w, h, data) = self.frames[self.next % self.frames.len()].clone();
         self.next += 1;
-        let skew = if let Some(Fault::Skew(d)) = fault { d } else { Duration::ZERO };
+        let skew = if let Some(Fault::Skew(d)) = fault {
+            d
+        } else {
+            Duration::ZERO
+        };
         Ok(Frame {
             camera: self.info.id.clone(),
             width: w,

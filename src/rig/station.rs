@@ -75,7 +75,10 @@ impl RigConfig {
     /// config's folder.
     pub fn load(path: &Path) -> Result<RigConfig, StationError> {
         let name = path.display().to_string();
-        let err = |msg: String| StationError::Config { path: name.clone(), msg };
+        let err = |msg: String| StationError::Config {
+            path: name.clone(),
+            msg,
+        };
         let text = std::fs::read_to_string(path).map_err(|e| err(e.to_string()))?;
         let table: toml::Table = toml::from_str(&text).map_err(|e| err(e.to_string()))?;
         let pick = |k: &str| table.get(k).cloned();
@@ -85,7 +88,9 @@ impl RigConfig {
                 sub.insert(k.into(), v);
             }
         }
-        let mut cfg: RigConfig = sub.try_into().map_err(|e: toml::de::Error| err(e.to_string()))?;
+        let mut cfg: RigConfig = sub
+            .try_into()
+            .map_err(|e: toml::de::Error| err(e.to_string()))?;
         if cfg.cameras.is_empty() {
             return Err(err("[[cameras]]: no camera is configured".into()));
         }
@@ -99,7 +104,10 @@ impl RigConfig {
         for c in &mut cfg.cameras {
             let kinds = c.device.is_some() as u8 + c.replay.is_some() as u8 + c.synthetic as u8;
             if kinds != 1 {
-                return Err(err(format!("camera '{}': give exactly one of device, replay or synthetic", c.id)));
+                return Err(err(format!(
+                    "camera '{}': give exactly one of device, replay or synthetic",
+                    c.id
+                )));
             }
             for r in c.replay.iter_mut().flatten() {
                 abs(r);
@@ -118,7 +126,11 @@ impl RigConfig {
         let s = &self.capture.camera_settings;
         let mut cameras: Vec<Box<dyn Camera>> = Vec::new();
         for c in &self.cameras {
-            let info = CameraInfo { id: c.id.clone(), pod: c.pod.clone(), side: c.side.clone() };
+            let info = CameraInfo {
+                id: c.id.clone(),
+                pod: c.pod.clone(),
+                side: c.side.clone(),
+            };
             let cam: Box<dyn Camera> = if let Some(dev) = &c.device {
                 Box::new(V4l2Camera::open(info, dev)?)
             } else if let Some(sets) = &c.replay {
@@ -130,11 +142,24 @@ impl RigConfig {
             cameras.push(cam);
         }
         let trigger: Box<dyn Trigger + Send> = match &self.trigger {
-            Some(t) => Box::new(TriggerLink::new(&t.device, t.baud, Duration::from_millis(t.reply_timeout_ms))),
+            Some(t) => Box::new(TriggerLink::new(
+                &t.device,
+                t.baud,
+                Duration::from_millis(t.reply_timeout_ms),
+            )),
             None => Box::new(SoftwareTrigger),
         };
-        let mut session = Session::new(cameras, trigger, &self.capture.root, self.capture.options.clone(), s.clone());
-        session.configure().map_err(|e| StationError::Config { path: "cameras".into(), msg: e.to_string() })?;
+        let mut session = Session::new(
+            cameras,
+            trigger,
+            &self.capture.root,
+            self.capture.options.clone(),
+            s.clone(),
+        );
+        session.configure().map_err(|e| StationError::Config {
+            path: "cameras".into(),
+            msg: e.to_string(),
+        })?;
         Ok(session)
     }
 }

@@ -21,12 +21,27 @@ pub const MAX_LINE: usize = 120;
 /// A line from the box.
 #[derive(Debug, Clone, PartialEq)]
 pub enum BoxMessage {
-    Hello { name: String, protocol: u32, firmware: String },
-    Armed { seq: u32 },
-    Ack { seq: u32, box_time_us: u64 },
-    Pong { box_time_us: u64 },
+    Hello {
+        name: String,
+        protocol: u32,
+        firmware: String,
+    },
+    Armed {
+        seq: u32,
+    },
+    Ack {
+        seq: u32,
+        box_time_us: u64,
+    },
+    Pong {
+        box_time_us: u64,
+    },
     Event(BoxEvent),
-    Error { seq: Option<u32>, code: String, text: String },
+    Error {
+        seq: Option<u32>,
+        code: String,
+        text: String,
+    },
 }
 
 /// Something the box reports on its own.
@@ -34,10 +49,18 @@ pub enum BoxMessage {
 #[serde(tag = "event", rename_all = "lowercase")]
 pub enum BoxEvent {
     /// the operator pressed the capture button
-    Button { box_time_us: u64 },
+    Button {
+        box_time_us: u64,
+    },
     /// an RFID reader read an animal's tag
-    Rfid { tag: String, box_time_us: u64 },
-    Fault { code: String, text: String },
+    Rfid {
+        tag: String,
+        box_time_us: u64,
+    },
+    Fault {
+        code: String,
+        text: String,
+    },
 }
 
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -45,11 +68,20 @@ pub enum TriggerError {
     #[error("trigger box {port}: {msg}")]
     Io { port: String, msg: String },
     #[error("trigger box {port}: no answer to {command} within {waited_ms} ms")]
-    NoAnswer { port: String, command: String, waited_ms: u64 },
+    NoAnswer {
+        port: String,
+        command: String,
+        waited_ms: u64,
+    },
     #[error("trigger box {port}: speaks protocol {got}, conformd speaks {PROTOCOL}")]
     Protocol { port: String, got: u32 },
     #[error("trigger box {port}: refused {command}: {code} {text}")]
-    Refused { port: String, command: String, code: String, text: String },
+    Refused {
+        port: String,
+        command: String,
+        code: String,
+        text: String,
+    },
     #[error("trigger box {port}: not connected (next attempt in {retry_ms} ms)")]
     Disconnected { port: String, retry_ms: u64 },
 }
@@ -64,15 +96,33 @@ pub fn parse_line(line: &str) -> Result<BoxMessage, String> {
     }
     let tok: Vec<&str> = line.split_whitespace().collect();
     let num = |i: usize| -> Result<u64, String> {
-        tok.get(i).ok_or_else(|| format!("'{line}': a field is missing"))?.parse::<u64>().map_err(|_| format!("'{line}': '{}' is not a number", tok[i]))
+        tok.get(i)
+            .ok_or_else(|| format!("'{line}': a field is missing"))?
+            .parse::<u64>()
+            .map_err(|_| format!("'{line}': '{}' is not a number", tok[i]))
     };
-    let seq = |i: usize| -> Result<u32, String> { num(i).and_then(|v| u32::try_from(v).map_err(|_| format!("'{line}': sequence too large"))) };
+    let seq = |i: usize| -> Result<u32, String> {
+        num(i).and_then(|v| u32::try_from(v).map_err(|_| format!("'{line}': sequence too large")))
+    };
     let rest = |i: usize| tok.get(i..).map(|t| t.join(" ")).unwrap_or_default();
-    let exact = |n: usize| if tok.len() == n { Ok(()) } else { Err(format!("'{line}': expected {n} fields, found {}", tok.len())) };
+    let exact = |n: usize| {
+        if tok.len() == n {
+            Ok(())
+        } else {
+            Err(format!(
+                "'{line}': expected {n} fields, found {}",
+                tok.len()
+            ))
+        }
+    };
     Ok(match tok.first().copied() {
         Some("HELLO") => {
             exact(4)?;
-            BoxMessage::Hello { name: tok[1].into(), protocol: seq(2)?, firmware: tok[3].into() }
+            BoxMessage::Hello {
+                name: tok[1].into(),
+                protocol: seq(2)?,
+                firmware: tok[3].into(),
+            }
         }
         Some("ARMED") => {
             exact(2)?;
@@ -80,22 +130,35 @@ pub fn parse_line(line: &str) -> Result<BoxMessage, String> {
         }
         Some("ACK") => {
             exact(3)?;
-            BoxMessage::Ack { seq: seq(1)?, box_time_us: num(2)? }
+            BoxMessage::Ack {
+                seq: seq(1)?,
+                box_time_us: num(2)?,
+            }
         }
         Some("PONG") => {
             exact(2)?;
-            BoxMessage::Pong { box_time_us: num(1)? }
+            BoxMessage::Pong {
+                box_time_us: num(1)?,
+            }
         }
         Some("EVT") => match tok.get(1).copied() {
             Some("BUTTON") => {
                 exact(3)?;
-                BoxMessage::Event(BoxEvent::Button { box_time_us: num(2)? })
+                BoxMessage::Event(BoxEvent::Button {
+                    box_time_us: num(2)?,
+                })
             }
             Some("RFID") => {
                 exact(4)?;
-                BoxMessage::Event(BoxEvent::Rfid { tag: tok[2].into(), box_time_us: num(3)? })
+                BoxMessage::Event(BoxEvent::Rfid {
+                    tag: tok[2].into(),
+                    box_time_us: num(3)?,
+                })
             }
-            Some("FAULT") if tok.len() >= 3 => BoxMessage::Event(BoxEvent::Fault { code: tok[2].into(), text: rest(3) }),
+            Some("FAULT") if tok.len() >= 3 => BoxMessage::Event(BoxEvent::Fault {
+                code: tok[2].into(),
+                text: rest(3),
+            }),
             _ => return Err(format!("'{line}': unknown event")),
         },
         Some("ERR") if tok.len() >= 3 => BoxMessage::Error {
@@ -120,9 +183,13 @@ impl LineReader {
         for &b in bytes {
             if b == b'\n' {
                 if self.overflow {
-                    lines.push(Err(format!("over-long line (more than {MAX_LINE} bytes) skipped")));
+                    lines.push(Err(format!(
+                        "over-long line (more than {MAX_LINE} bytes) skipped"
+                    )));
                 } else {
-                    let s = String::from_utf8_lossy(&self.buf).trim_end_matches('\r').to_string();
+                    let s = String::from_utf8_lossy(&self.buf)
+                        .trim_end_matches('\r')
+                        .to_string();
                     lines.push(Ok(s));
                 }
                 self.buf.clear();
@@ -157,7 +224,10 @@ impl<P: Read + Write> TriggerBox<P> {
         let mut b = TriggerBox {
             port,
             name: name.into(),
-            reader: LineReader { buf: Vec::new(), overflow: false },
+            reader: LineReader {
+                buf: Vec::new(),
+                overflow: false,
+            },
             pending: VecDeque::new(),
             events: VecDeque::new(),
             warnings: Vec::new(),
@@ -166,9 +236,14 @@ impl<P: Read + Write> TriggerBox<P> {
         };
         b.send(&format!("HELLO conformd {PROTOCOL}"))?;
         match b.wait("HELLO", |m| matches!(m, BoxMessage::Hello { .. }))? {
-            BoxMessage::Hello { protocol, firmware, .. } => {
+            BoxMessage::Hello {
+                protocol, firmware, ..
+            } => {
                 if protocol != PROTOCOL {
-                    return Err(TriggerError::Protocol { port: b.name.clone(), got: protocol });
+                    return Err(TriggerError::Protocol {
+                        port: b.name.clone(),
+                        got: protocol,
+                    });
                 }
                 b.firmware = firmware;
             }
@@ -178,17 +253,26 @@ impl<P: Read + Write> TriggerBox<P> {
     }
 
     fn io(&self, e: impl std::fmt::Display) -> TriggerError {
-        TriggerError::Io { port: self.name.clone(), msg: e.to_string() }
+        TriggerError::Io {
+            port: self.name.clone(),
+            msg: e.to_string(),
+        }
     }
 
     fn send(&mut self, line: &str) -> Result<(), TriggerError> {
         let mut bytes = line.as_bytes().to_vec();
         bytes.push(b'\n');
-        self.port.write_all(&bytes).and_then(|_| self.port.flush()).map_err(|e| self.io(e))
+        self.port
+            .write_all(&bytes)
+            .and_then(|_| self.port.flush())
+            .map_err(|e| self.io(e))
     }
 
     /// Next line within the deadline (None when it passes).
-    fn next_line(&mut self, deadline: Instant) -> Result<Option<Result<String, String>>, TriggerError> {
+    fn next_line(
+        &mut self,
+        deadline: Instant,
+    ) -> Result<Option<Result<String, String>>, TriggerError> {
         loop {
             if let Some(l) = self.pending.pop_front() {
                 return Ok(Some(l));
@@ -204,7 +288,13 @@ impl<P: Read + Write> TriggerBox<P> {
                     self.reader.feed(&buf[..n], &mut lines);
                     self.pending.extend(lines);
                 }
-                Err(e) if matches!(e.kind(), std::io::ErrorKind::TimedOut | std::io::ErrorKind::WouldBlock | std::io::ErrorKind::Interrupted) => {}
+                Err(e)
+                    if matches!(
+                        e.kind(),
+                        std::io::ErrorKind::TimedOut
+                            | std::io::ErrorKind::WouldBlock
+                            | std::io::ErrorKind::Interrupted
+                    ) => {}
                 Err(e) => return Err(self.io(e)),
             }
         }
@@ -212,7 +302,11 @@ impl<P: Read + Write> TriggerBox<P> {
 
     /// Waits for a message `want` accepts; events are queued, garbage reported and
     /// skipped, an ERR for this command returned as an error.
-    fn wait(&mut self, command: &str, want: impl Fn(&BoxMessage) -> bool) -> Result<BoxMessage, TriggerError> {
+    fn wait(
+        &mut self,
+        command: &str,
+        want: impl Fn(&BoxMessage) -> bool,
+    ) -> Result<BoxMessage, TriggerError> {
         let start = Instant::now();
         let deadline = start + self.reply_timeout;
         while let Some(line) = self.next_line(deadline)? {
@@ -226,24 +320,42 @@ impl<P: Read + Write> TriggerBox<P> {
             match msg {
                 BoxMessage::Event(e) => self.events.push_back(e),
                 BoxMessage::Error { code, text, .. } => {
-                    return Err(TriggerError::Refused { port: self.name.clone(), command: command.into(), code, text });
+                    return Err(TriggerError::Refused {
+                        port: self.name.clone(),
+                        command: command.into(),
+                        code,
+                        text,
+                    });
                 }
                 m if want(&m) => return Ok(m),
-                m => self.warnings.push(format!("unexpected {m:?} while waiting for the answer to {command}")),
+                m => self.warnings.push(format!(
+                    "unexpected {m:?} while waiting for the answer to {command}"
+                )),
             }
         }
-        Err(TriggerError::NoAnswer { port: self.name.clone(), command: command.into(), waited_ms: start.elapsed().as_millis() as u64 })
+        Err(TriggerError::NoAnswer {
+            port: self.name.clone(),
+            command: command.into(),
+            waited_ms: start.elapsed().as_millis() as u64,
+        })
     }
 
     pub fn arm(&mut self, seq: u32) -> Result<(), TriggerError> {
         self.send(&format!("ARM {seq}"))?;
-        self.wait(&format!("ARM {seq}"), |m| matches!(m, BoxMessage::Armed { seq: s } if *s == seq)).map(|_| ())
+        self.wait(
+            &format!("ARM {seq}"),
+            |m| matches!(m, BoxMessage::Armed { seq: s } if *s == seq),
+        )
+        .map(|_| ())
     }
 
     /// Fires the cameras; returns the box's timestamp of the pulse.
     pub fn fire(&mut self, seq: u32, exposure_us: u32) -> Result<u64, TriggerError> {
         self.send(&format!("FIRE {seq} {exposure_us}"))?;
-        match self.wait(&format!("FIRE {seq}"), |m| matches!(m, BoxMessage::Ack { seq: s, .. } if *s == seq))? {
+        match self.wait(
+            &format!("FIRE {seq}"),
+            |m| matches!(m, BoxMessage::Ack { seq: s, .. } if *s == seq),
+        )? {
             BoxMessage::Ack { box_time_us, .. } => Ok(box_time_us),
             _ => unreachable!(),
         }
@@ -312,12 +424,18 @@ impl TriggerLink {
         if self.conn.is_none() {
             let now = Instant::now();
             if now < self.next_attempt {
-                return Err(TriggerError::Disconnected { port: self.name(), retry_ms: (self.next_attempt - now).as_millis() as u64 });
+                return Err(TriggerError::Disconnected {
+                    port: self.name(),
+                    retry_ms: (self.next_attempt - now).as_millis() as u64,
+                });
             }
             let opened = serialport::new(self.path.to_string_lossy(), self.baud)
                 .timeout(Duration::from_millis(20))
                 .open_native()
-                .map_err(|e| TriggerError::Io { port: self.name(), msg: e.to_string() })
+                .map_err(|e| TriggerError::Io {
+                    port: self.name(),
+                    msg: e.to_string(),
+                })
                 .and_then(|p| TriggerBox::connect(p, &self.name(), self.reply_timeout));
             match opened {
                 Ok(c) => {
@@ -336,9 +454,15 @@ impl TriggerLink {
     }
 
     /// Runs one operation; an I/O failure drops the connection so the next call reopens.
-    pub fn with<T>(&mut self, op: impl FnOnce(&mut TriggerBox<serialport::TTYPort>) -> Result<T, TriggerError>) -> Result<T, TriggerError> {
+    pub fn with<T>(
+        &mut self,
+        op: impl FnOnce(&mut TriggerBox<serialport::TTYPort>) -> Result<T, TriggerError>,
+    ) -> Result<T, TriggerError> {
         let r = op(self.connection()?);
-        if matches!(r, Err(TriggerError::Io { .. }) | Err(TriggerError::NoAnswer { .. })) {
+        if matches!(
+            r,
+            Err(TriggerError::Io { .. }) | Err(TriggerError::NoAnswer { .. })
+        ) {
             self.conn = None;
             self.next_attempt = Instant::now() + self.backoff;
         }
@@ -352,17 +476,52 @@ mod tests {
 
     #[test]
     fn lines_are_checked() {
-        assert_eq!(parse_line("ACK 7 123456"), Ok(BoxMessage::Ack { seq: 7, box_time_us: 123456 }));
-        assert_eq!(parse_line("EVT RFID 982000123456789 55"), Ok(BoxMessage::Event(BoxEvent::Rfid { tag: "982000123456789".into(), box_time_us: 55 })));
+        assert_eq!(
+            parse_line("ACK 7 123456"),
+            Ok(BoxMessage::Ack {
+                seq: 7,
+                box_time_us: 123456
+            })
+        );
+        assert_eq!(
+            parse_line("EVT RFID 982000123456789 55"),
+            Ok(BoxMessage::Event(BoxEvent::Rfid {
+                tag: "982000123456789".into(),
+                box_time_us: 55
+            }))
+        );
         assert_eq!(
             parse_line("ERR 3 E_BUSY still charging"),
-            Ok(BoxMessage::Error { seq: Some(3), code: "E_BUSY".into(), text: "still charging".into() })
+            Ok(BoxMessage::Error {
+                seq: Some(3),
+                code: "E_BUSY".into(),
+                text: "still charging".into()
+            })
         );
-        assert!(parse_line("ACK seven 1").unwrap_err().contains("'seven' is not a number"));
-        assert!(parse_line("ACK 1").unwrap_err().contains("expected 3 fields"));
-        assert!(parse_line("WHAT 1").unwrap_err().contains("unknown message 'WHAT'"));
-        assert!(parse_line("ACK 1 2\u{7}").unwrap_err().contains("non-printable"));
-        let mut r = LineReader { buf: vec![], overflow: false };
+        assert!(
+            parse_line("ACK seven 1")
+                .unwrap_err()
+                .contains("'seven' is not a number")
+        );
+        assert!(
+            parse_line("ACK 1")
+                .unwrap_err()
+                .contains("expected 3 fields")
+        );
+        assert!(
+            parse_line("WHAT 1")
+                .unwrap_err()
+                .contains("unknown message 'WHAT'")
+        );
+        assert!(
+            parse_line("ACK 1 2\u{7}")
+                .unwrap_err()
+                .contains("non-printable")
+        );
+        let mut r = LineReader {
+            buf: vec![],
+            overflow: false,
+        };
         let mut out = Vec::new();
         r.feed(&[b'x'; 300], &mut out);
         r.feed(b"\nPONG 5\n", &mut out);

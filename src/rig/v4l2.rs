@@ -5,7 +5,9 @@
 //! The parts that need no device (negotiation, controls, timestamps, decoding) are plain
 //! functions, unit-tested without hardware.
 
-use super::camera::{Camera, CameraError, CameraInfo, CameraSettings, Frame, FrameData, PixelFormat};
+use super::camera::{
+    Camera, CameraError, CameraInfo, CameraSettings, Frame, FrameData, PixelFormat,
+};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 use v4l::buffer::Type;
@@ -27,8 +29,15 @@ pub const EXPOSURE_APERTURE_PRIORITY: i64 = 3;
 /// GREY, in that order), else an error listing what the device offers.
 ///
 /// - `offered`: (format, sizes) pairs the device advertises
-pub fn choose_format(offered: &[(PixelFormat, Vec<(u32, u32)>)], want: &CameraSettings) -> Result<(PixelFormat, u32, u32), String> {
-    let has = |f: PixelFormat| offered.iter().any(|(g, sizes)| *g == f && sizes.contains(&(want.width, want.height)));
+pub fn choose_format(
+    offered: &[(PixelFormat, Vec<(u32, u32)>)],
+    want: &CameraSettings,
+) -> Result<(PixelFormat, u32, u32), String> {
+    let has = |f: PixelFormat| {
+        offered
+            .iter()
+            .any(|(g, sizes)| *g == f && sizes.contains(&(want.width, want.height)))
+    };
     if has(want.format) {
         return Ok((want.format, want.width, want.height));
     }
@@ -39,9 +48,26 @@ pub fn choose_format(offered: &[(PixelFormat, Vec<(u32, u32)>)], want: &CameraSe
     }
     let list: Vec<String> = offered
         .iter()
-        .map(|(f, s)| format!("{f:?} {}", s.iter().map(|(w, h)| format!("{w}x{h}")).collect::<Vec<_>>().join(" ")))
+        .map(|(f, s)| {
+            format!(
+                "{f:?} {}",
+                s.iter()
+                    .map(|(w, h)| format!("{w}x{h}"))
+                    .collect::<Vec<_>>()
+                    .join(" ")
+            )
+        })
         .collect();
-    Err(format!("{}x{} is not offered (the device has: {})", want.width, want.height, if list.is_empty() { "nothing the station reads".into() } else { list.join("; ") }))
+    Err(format!(
+        "{}x{} is not offered (the device has: {})",
+        want.width,
+        want.height,
+        if list.is_empty() {
+            "nothing the station reads".into()
+        } else {
+            list.join("; ")
+        }
+    ))
 }
 
 /// The control writes for the settings: manual exposure in the driver's units of 100 us,
@@ -73,11 +99,19 @@ pub fn timestamp(sec: i64, usec: i64) -> Duration {
 pub fn yuyv_to_rgb(data: &[u8], width: u32, height: u32) -> Result<Vec<u8>, String> {
     let need = (width * height * 2) as usize;
     if data.len() < need {
-        return Err(format!("YUYV frame of {} bytes, {need} expected", data.len()));
+        return Err(format!(
+            "YUYV frame of {} bytes, {need} expected",
+            data.len()
+        ));
     }
     let mut out = Vec::with_capacity((width * height * 3) as usize);
     for px in data[..need].chunks_exact(4) {
-        let (y0, u, y1, v) = (px[0] as f32, px[1] as f32 - 128.0, px[2] as f32, px[3] as f32 - 128.0);
+        let (y0, u, y1, v) = (
+            px[0] as f32,
+            px[1] as f32 - 128.0,
+            px[2] as f32,
+            px[3] as f32 - 128.0,
+        );
         for y in [y0, y1] {
             let c = 1.164 * (y - 16.0);
             out.push((c + 1.596 * v).round().clamp(0.0, 255.0) as u8);
@@ -89,7 +123,12 @@ pub fn yuyv_to_rgb(data: &[u8], width: u32, height: u32) -> Result<Vec<u8>, Stri
 }
 
 /// A dequeued buffer as frame pixels.
-pub fn decode(format: PixelFormat, data: &[u8], width: u32, height: u32) -> Result<FrameData, String> {
+pub fn decode(
+    format: PixelFormat,
+    data: &[u8],
+    width: u32,
+    height: u32,
+) -> Result<FrameData, String> {
     match format {
         PixelFormat::Mjpg => {
             if data.len() < 4 || data[0] != 0xff || data[1] != 0xd8 {
@@ -101,7 +140,10 @@ pub fn decode(format: PixelFormat, data: &[u8], width: u32, height: u32) -> Resu
         PixelFormat::Grey => {
             let need = (width * height) as usize;
             if data.len() < need {
-                return Err(format!("GREY frame of {} bytes, {need} expected", data.len()));
+                return Err(format!(
+                    "GREY frame of {} bytes, {need} expected",
+                    data.len()
+                ));
             }
             Ok(FrameData::Gray8(data[..need].to_vec()))
         }
@@ -111,7 +153,11 @@ pub fn decode(format: PixelFormat, data: &[u8], width: u32, height: u32) -> Resu
 /// Resolves a camera name: a path as it is, or a name under `/dev/v4l/by-id/`.
 pub fn resolve(name: &str) -> PathBuf {
     let p = Path::new(name);
-    if p.is_absolute() || name.starts_with('.') { p.to_path_buf() } else { Path::new("/dev/v4l/by-id").join(name) }
+    if p.is_absolute() || name.starts_with('.') {
+        p.to_path_buf()
+    } else {
+        Path::new("/dev/v4l/by-id").join(name)
+    }
 }
 
 /// A V4L2 camera.
@@ -129,23 +175,43 @@ impl V4l2Camera {
     /// Opens `/dev/videoN`, another path, or a `/dev/v4l/by-id` name.
     pub fn open(info: CameraInfo, name: &str) -> Result<Self, CameraError> {
         let path = resolve(name);
-        let dev = Device::with_path(&path)
-            .map_err(|e| CameraError::Device { camera: info.id.clone(), msg: format!("{}: {e}", path.display()) })?;
-        Ok(V4l2Camera { info, path, dev, stream: None, format: (PixelFormat::Mjpg, 0, 0), exposure_us: None, last_sequence: None })
+        let dev = Device::with_path(&path).map_err(|e| CameraError::Device {
+            camera: info.id.clone(),
+            msg: format!("{}: {e}", path.display()),
+        })?;
+        Ok(V4l2Camera {
+            info,
+            path,
+            dev,
+            stream: None,
+            format: (PixelFormat::Mjpg, 0, 0),
+            exposure_us: None,
+            last_sequence: None,
+        })
     }
 
     fn err(&self, msg: impl std::fmt::Display) -> CameraError {
-        CameraError::Device { camera: self.info.id.clone(), msg: format!("{}: {msg}", self.path.display()) }
+        CameraError::Device {
+            camera: self.info.id.clone(),
+            msg: format!("{}: {msg}", self.path.display()),
+        }
     }
 
     /// What the device offers in the formats the station reads.
     pub fn offered(dev: &Device) -> std::io::Result<Vec<(PixelFormat, Vec<(u32, u32)>)>> {
         let mut out = Vec::new();
         for d in dev.enum_formats()? {
-            let Some(f) = PixelFormat::from_fourcc(&d.fourcc.repr) else { continue };
+            let Some(f) = PixelFormat::from_fourcc(&d.fourcc.repr) else {
+                continue;
+            };
             let mut sizes = Vec::new();
             for s in dev.enum_framesizes(d.fourcc).unwrap_or_default() {
-                sizes.extend(s.size.to_discrete().into_iter().map(|d| (d.width, d.height)));
+                sizes.extend(
+                    s.size
+                        .to_discrete()
+                        .into_iter()
+                        .map(|d| (d.width, d.height)),
+                );
             }
             out.push((f, sizes));
         }
@@ -160,18 +226,30 @@ impl Camera for V4l2Camera {
 
     fn configure(&mut self, s: &CameraSettings) -> Result<(), CameraError> {
         let offered = Self::offered(&self.dev).map_err(|e| self.err(e))?;
-        let (f, w, h) = choose_format(&offered, s).map_err(|m| CameraError::Settings { camera: self.info.id.clone(), msg: m })?;
+        let (f, w, h) = choose_format(&offered, s).map_err(|m| CameraError::Settings {
+            camera: self.info.id.clone(),
+            msg: m,
+        })?;
         let mut fmt = self.dev.format().map_err(|e| self.err(e))?;
         fmt.width = w;
         fmt.height = h;
         fmt.fourcc = FourCC::new(&f.fourcc());
         let got = self.dev.set_format(&fmt).map_err(|e| self.err(e))?;
         if (got.width, got.height) != (w, h) || got.fourcc.repr != f.fourcc() {
-            return Err(CameraError::Settings { camera: self.info.id.clone(), msg: format!("asked for {f:?} {w}x{h}, the driver gave {} {}x{}", got.fourcc, got.width, got.height) });
+            return Err(CameraError::Settings {
+                camera: self.info.id.clone(),
+                msg: format!(
+                    "asked for {f:?} {w}x{h}, the driver gave {} {}x{}",
+                    got.fourcc, got.width, got.height
+                ),
+            });
         }
         for (id, value) in control_writes(s) {
             // cameras without a control (no gain, fixed exposure) are not an error
-            let _ = self.dev.set_control(v4l::Control { id, value: v4l::control::Value::Integer(value) });
+            let _ = self.dev.set_control(v4l::Control {
+                id,
+                value: v4l::control::Value::Integer(value),
+            });
         }
         self.format = (f, w, h);
         self.exposure_us = s.exposure_us;
@@ -181,7 +259,8 @@ impl Camera for V4l2Camera {
     fn arm(&mut self) -> Result<(), CameraError> {
         // a fresh stream: no stale frame from before the trigger is taken
         self.stream = None;
-        let stream = MmapStream::with_buffers(&self.dev, Type::VideoCapture, 4).map_err(|e| self.err(e))?;
+        let stream =
+            MmapStream::with_buffers(&self.dev, Type::VideoCapture, 4).map_err(|e| self.err(e))?;
         self.stream = Some(stream);
         self.last_sequence = None;
         Ok(())
@@ -192,23 +271,41 @@ impl Camera for V4l2Camera {
         let left = deadline.saturating_duration_since(start);
         let (f, w, h) = self.format;
         let camera = self.info.id.clone();
-        let stream = self.stream.as_mut().ok_or_else(|| CameraError::Device { camera: camera.clone(), msg: "grab before arm".into() })?;
+        let stream = self.stream.as_mut().ok_or_else(|| CameraError::Device {
+            camera: camera.clone(),
+            msg: "grab before arm".into(),
+        })?;
         stream.set_timeout(left.max(Duration::from_millis(1)));
         let (buf, meta) = match stream.next() {
             Ok(x) => x,
             Err(e) if e.kind() == std::io::ErrorKind::TimedOut => {
-                return Err(CameraError::Timeout { camera, waited_ms: start.elapsed().as_millis() as u64 });
+                return Err(CameraError::Timeout {
+                    camera,
+                    waited_ms: start.elapsed().as_millis() as u64,
+                });
             }
-            Err(e) => return Err(CameraError::Device { camera, msg: e.to_string() }),
+            Err(e) => {
+                return Err(CameraError::Device {
+                    camera,
+                    msg: e.to_string(),
+                });
+            }
         };
         let used = (meta.bytesused as usize).min(buf.len());
-        let data = decode(f, &buf[..used], w, h).map_err(|m| CameraError::Device { camera: camera.clone(), msg: m })?;
+        let data = decode(f, &buf[..used], w, h).map_err(|m| CameraError::Device {
+            camera: camera.clone(),
+            msg: m,
+        })?;
         let sequence = meta.sequence;
-        if let Some(prev) = self.last_sequence {
-            if sequence != prev.wrapping_add(1) {
-                self.last_sequence = Some(sequence);
-                return Err(CameraError::LostFrame { camera, expected: prev.wrapping_add(1), got: sequence });
-            }
+        if let Some(prev) = self.last_sequence
+            && sequence != prev.wrapping_add(1)
+        {
+            self.last_sequence = Some(sequence);
+            return Err(CameraError::LostFrame {
+                camera,
+                expected: prev.wrapping_add(1),
+                got: sequence,
+            });
         }
         self.last_sequence = Some(sequence);
         Ok(Frame {
@@ -216,7 +313,7 @@ impl Camera for V4l2Camera {
             width: w,
             height: h,
             data,
-            sensor_time: timestamp(meta.timestamp.sec as i64, meta.timestamp.usec as i64),
+            sensor_time: timestamp(meta.timestamp.sec, meta.timestamp.usec),
             sequence,
             exposure_us: self.exposure_us,
         })
@@ -243,14 +340,20 @@ pub fn list_devices() -> Vec<DeviceListing> {
     let by_id: Vec<(PathBuf, String)> = std::fs::read_dir("/dev/v4l/by-id")
         .map(|rd| {
             rd.filter_map(|e| e.ok())
-                .filter_map(|e| std::fs::canonicalize(e.path()).ok().map(|t| (t, e.file_name().to_string_lossy().to_string())))
+                .filter_map(|e| {
+                    std::fs::canonicalize(e.path())
+                        .ok()
+                        .map(|t| (t, e.file_name().to_string_lossy().to_string()))
+                })
                 .collect()
         })
         .unwrap_or_default();
     let mut out = Vec::new();
     for node in v4l::context::enum_devices() {
         let path = node.path().to_path_buf();
-        let Ok(dev) = Device::with_path(&path) else { continue };
+        let Ok(dev) = Device::with_path(&path) else {
+            continue;
+        };
         let Ok(caps) = dev.query_caps() else { continue };
         let mut formats = Vec::new();
         for d in dev.enum_formats().unwrap_or_default() {
@@ -258,19 +361,39 @@ pub fn list_devices() -> Vec<DeviceListing> {
                 .enum_framesizes(d.fourcc)
                 .unwrap_or_default()
                 .into_iter()
-                .flat_map(|s| s.size.to_discrete().into_iter().map(|x| format!("{}x{}", x.width, x.height)).collect::<Vec<_>>())
+                .flat_map(|s| {
+                    s.size
+                        .to_discrete()
+                        .into_iter()
+                        .map(|x| format!("{}x{}", x.width, x.height))
+                        .collect::<Vec<_>>()
+                })
                 .collect();
-            formats.push(format!("{} ({}): {}", d.fourcc, d.description, sizes.join(" ")));
+            formats.push(format!(
+                "{} ({}): {}",
+                d.fourcc,
+                d.description,
+                sizes.join(" ")
+            ));
         }
         let controls = dev
             .query_controls()
             .unwrap_or_default()
             .into_iter()
-            .map(|c| format!("{} [{}..{}, default {}]", c.name, c.minimum, c.maximum, c.default))
+            .map(|c| {
+                format!(
+                    "{} [{}..{}, default {}]",
+                    c.name, c.minimum, c.maximum, c.default
+                )
+            })
             .collect();
         let canon = std::fs::canonicalize(&path).unwrap_or(path.clone());
         out.push(DeviceListing {
-            by_id: by_id.iter().filter(|(t, _)| *t == canon).map(|(_, n)| n.clone()).collect(),
+            by_id: by_id
+                .iter()
+                .filter(|(t, _)| *t == canon)
+                .map(|(_, n)| n.clone())
+                .collect(),
             path,
             name: caps.card,
             driver: caps.driver,
@@ -286,24 +409,58 @@ mod tests {
     use super::*;
 
     fn want(f: PixelFormat, w: u32, h: u32) -> CameraSettings {
-        CameraSettings { format: f, width: w, height: h, ..Default::default() }
+        CameraSettings {
+            format: f,
+            width: w,
+            height: h,
+            ..Default::default()
+        }
     }
 
     #[test]
     fn format_negotiation() {
-        let offered = vec![(PixelFormat::Yuyv, vec![(640, 480), (1280, 960)]), (PixelFormat::Mjpg, vec![(1280, 960), (1920, 1080)])];
-        assert_eq!(choose_format(&offered, &want(PixelFormat::Yuyv, 1280, 960)), Ok((PixelFormat::Yuyv, 1280, 960)));
-        assert_eq!(choose_format(&offered, &want(PixelFormat::Grey, 1280, 960)), Ok((PixelFormat::Mjpg, 1280, 960)));
-        assert_eq!(choose_format(&offered, &want(PixelFormat::Mjpg, 640, 480)), Ok((PixelFormat::Yuyv, 640, 480)));
+        let offered = vec![
+            (PixelFormat::Yuyv, vec![(640, 480), (1280, 960)]),
+            (PixelFormat::Mjpg, vec![(1280, 960), (1920, 1080)]),
+        ];
+        assert_eq!(
+            choose_format(&offered, &want(PixelFormat::Yuyv, 1280, 960)),
+            Ok((PixelFormat::Yuyv, 1280, 960))
+        );
+        assert_eq!(
+            choose_format(&offered, &want(PixelFormat::Grey, 1280, 960)),
+            Ok((PixelFormat::Mjpg, 1280, 960))
+        );
+        assert_eq!(
+            choose_format(&offered, &want(PixelFormat::Mjpg, 640, 480)),
+            Ok((PixelFormat::Yuyv, 640, 480))
+        );
         let e = choose_format(&offered, &want(PixelFormat::Mjpg, 800, 600)).unwrap_err();
-        assert!(e.contains("800x600 is not offered") && e.contains("Mjpg 1280x960 1920x1080"), "{e}");
+        assert!(
+            e.contains("800x600 is not offered") && e.contains("Mjpg 1280x960 1920x1080"),
+            "{e}"
+        );
     }
 
     #[test]
     fn controls_and_timestamps() {
-        let s = CameraSettings { exposure_us: Some(8000), gain: Some(4), ..Default::default() };
-        assert_eq!(control_writes(&s), vec![(CID_EXPOSURE_AUTO, 1), (CID_EXPOSURE_ABSOLUTE, 80), (CID_GAIN, 4)]);
-        assert_eq!(control_writes(&CameraSettings::default()), vec![(CID_EXPOSURE_AUTO, 3)]);
+        let s = CameraSettings {
+            exposure_us: Some(8000),
+            gain: Some(4),
+            ..Default::default()
+        };
+        assert_eq!(
+            control_writes(&s),
+            vec![
+                (CID_EXPOSURE_AUTO, 1),
+                (CID_EXPOSURE_ABSOLUTE, 80),
+                (CID_GAIN, 4)
+            ]
+        );
+        assert_eq!(
+            control_writes(&CameraSettings::default()),
+            vec![(CID_EXPOSURE_AUTO, 3)]
+        );
         assert_eq!(timestamp(12, 345_678), Duration::from_micros(12_345_678));
         assert_eq!(timestamp(-1, 0), Duration::ZERO);
     }
@@ -314,11 +471,25 @@ mod tests {
         let rgb = yuyv_to_rgb(&[128, 128, 128, 128], 2, 1).unwrap();
         assert_eq!(rgb.len(), 6);
         assert!(rgb.iter().all(|&c| c == rgb[0]));
-        assert!(yuyv_to_rgb(&[1, 2, 3], 2, 1).unwrap_err().contains("3 bytes"));
-        assert!(matches!(decode(PixelFormat::Mjpg, &[0xff, 0xd8, 0, 0], 1, 1), Ok(FrameData::Jpeg(_))));
-        assert!(decode(PixelFormat::Mjpg, &[0, 0, 0, 0], 1, 1).unwrap_err().contains("not a JPEG"));
+        assert!(
+            yuyv_to_rgb(&[1, 2, 3], 2, 1)
+                .unwrap_err()
+                .contains("3 bytes")
+        );
+        assert!(matches!(
+            decode(PixelFormat::Mjpg, &[0xff, 0xd8, 0, 0], 1, 1),
+            Ok(FrameData::Jpeg(_))
+        ));
+        assert!(
+            decode(PixelFormat::Mjpg, &[0, 0, 0, 0], 1, 1)
+                .unwrap_err()
+                .contains("not a JPEG")
+        );
         assert!(decode(PixelFormat::Grey, &[1, 2], 2, 2).is_err());
-        assert_eq!(resolve("usb-cam0-video-index0"), PathBuf::from("/dev/v4l/by-id/usb-cam0-video-index0"));
+        assert_eq!(
+            resolve("usb-cam0-video-index0"),
+            PathBuf::from("/dev/v4l/by-id/usb-cam0-video-index0")
+        );
         assert_eq!(resolve("/dev/video2"), PathBuf::from("/dev/video2"));
     }
 }

@@ -297,7 +297,13 @@ pub fn articulated(spec: &ArticulatedSpec) -> Case {
 /// 0 = +x) and one overhead; triangles none of them sees are holes. Returns the point
 /// cloud (`points` samples, normal noise `noise` relative to the diagonal) and, per
 /// vertex, whether its place went unseen.
-pub fn scan_subject(subject: &Mesh, azimuths: &[f64], points: usize, noise: f64, seed: u64) -> (Mesh, Vec<bool>) {
+pub fn scan_subject(
+    subject: &Mesh,
+    azimuths: &[f64],
+    points: usize,
+    noise: f64,
+    seed: u64,
+) -> (Mesh, Vec<bool>) {
     let (lo, hi) = subject.bounding_box().expect("non-empty subject");
     let centre = (lo + hi) / 2.0;
     let diag = (hi - lo).norm();

@@ -28,26 +28,101 @@ impl std::str::FromStr for Kind {
 
 /// A pig standing in a crate, facing +x, z up, about 1.6 units long (metres).
 pub fn pig() -> Skeleton {
-    let mut s = Skeleton { bones: vec![], blend: 0.04, landmarks: vec![] };
+    let mut s = Skeleton {
+        bones: vec![],
+        blend: 0.04,
+        landmarks: vec![],
+    };
     let v = V3::new;
-    s.add("rump", None, v(-0.45, 0., 0.55), v(-0.05, 0., 0.56), (0.20, 0.22), "torso");
-    s.add("chest", Some("rump"), v(-0.05, 0., 0.56), v(0.33, 0., 0.55), (0.22, 0.19), "torso");
-    s.add("neck", Some("chest"), v(0.33, 0., 0.56), v(0.48, 0., 0.56), (0.15, 0.13), "head");
-    s.add("head", Some("neck"), v(0.48, 0., 0.56), v(0.66, 0., 0.51), (0.12, 0.09), "head");
-    s.add("snout", Some("head"), v(0.66, 0., 0.51), v(0.80, 0., 0.47), (0.07, 0.06), "snout");
-    s.add("tail", Some("rump"), v(-0.62, 0., 0.60), v(-0.73, 0., 0.50), (0.03, 0.02), "tail");
+    s.add(
+        "rump",
+        None,
+        v(-0.45, 0., 0.55),
+        v(-0.05, 0., 0.56),
+        (0.20, 0.22),
+        "torso",
+    );
+    s.add(
+        "chest",
+        Some("rump"),
+        v(-0.05, 0., 0.56),
+        v(0.33, 0., 0.55),
+        (0.22, 0.19),
+        "torso",
+    );
+    s.add(
+        "neck",
+        Some("chest"),
+        v(0.33, 0., 0.56),
+        v(0.48, 0., 0.56),
+        (0.15, 0.13),
+        "head",
+    );
+    s.add(
+        "head",
+        Some("neck"),
+        v(0.48, 0., 0.56),
+        v(0.66, 0., 0.51),
+        (0.12, 0.09),
+        "head",
+    );
+    s.add(
+        "snout",
+        Some("head"),
+        v(0.66, 0., 0.51),
+        v(0.80, 0., 0.47),
+        (0.07, 0.06),
+        "snout",
+    );
+    s.add(
+        "tail",
+        Some("rump"),
+        v(-0.62, 0., 0.60),
+        v(-0.73, 0., 0.50),
+        (0.03, 0.02),
+        "tail",
+    );
     for (side, y) in [("l", 1.0), ("r", -1.0)] {
         let n = |b: &str| format!("{b}_{side}");
-        s.add(&n("ear"), Some("head"), v(0.56, 0.07 * y, 0.64), v(0.60, 0.15 * y, 0.74), (0.04, 0.025), "ears");
+        s.add(
+            &n("ear"),
+            Some("head"),
+            v(0.56, 0.07 * y, 0.64),
+            v(0.60, 0.15 * y, 0.74),
+            (0.04, 0.025),
+            "ears",
+        );
         for (leg, x) in [("f", 0.26), ("h", -0.36)] {
             let parent = if leg == "f" { "chest" } else { "rump" };
             let up = format!("leg_{leg}{side}");
             let low = format!("shank_{leg}{side}");
             let hoof = format!("hoof_{leg}{side}");
-            s.add(&up, Some(parent), v(x, 0.11 * y, 0.46), v(x + 0.02, 0.11 * y, 0.24), (0.075, 0.05), "legs");
-            s.add(&low, Some(&up), v(x + 0.02, 0.11 * y, 0.24), v(x, 0.11 * y, 0.07), (0.05, 0.04), "legs");
-            s.add(&hoof, Some(&low), v(x, 0.11 * y, 0.07), v(x + 0.04, 0.11 * y, 0.03), (0.042, 0.035), "hooves");
-            s.landmarks.push((format!("hoof_{leg}{side}"), v(x + 0.07, 0.11 * y, 0.02)));
+            s.add(
+                &up,
+                Some(parent),
+                v(x, 0.11 * y, 0.46),
+                v(x + 0.02, 0.11 * y, 0.24),
+                (0.075, 0.05),
+                "legs",
+            );
+            s.add(
+                &low,
+                Some(&up),
+                v(x + 0.02, 0.11 * y, 0.24),
+                v(x, 0.11 * y, 0.07),
+                (0.05, 0.04),
+                "legs",
+            );
+            s.add(
+                &hoof,
+                Some(&low),
+                v(x, 0.11 * y, 0.07),
+                v(x + 0.04, 0.11 * y, 0.03),
+                (0.042, 0.035),
+                "hooves",
+            );
+            s.landmarks
+                .push((format!("hoof_{leg}{side}"), v(x + 0.07, 0.11 * y, 0.02)));
         }
         s.landmarks.extend([
             (n("ear_tip"), v(0.61, 0.17 * y, 0.77)),
@@ -73,8 +148,14 @@ pub fn body() -> Skeleton {
     let mut s = figure::humanoid();
     for (side, y) in [("l", 1.0), ("r", -1.0)] {
         s.landmarks.extend([
-            (format!("wrist_{side}"), V3::new(0.07, 0.58 * y, 1.06 - 0.04)),
-            (format!("ankle_{side}"), V3::new(0.0, (0.12 + 0.045) * y, 0.09)),
+            (
+                format!("wrist_{side}"),
+                V3::new(0.07, 0.58 * y, 1.06 - 0.04),
+            ),
+            (
+                format!("ankle_{side}"),
+                V3::new(0.0, (0.12 + 0.045) * y, 0.09),
+            ),
         ]);
     }
     s
@@ -136,15 +217,28 @@ pub fn shape_parameters(kind: Kind) -> Vec<&'static str> {
 }
 
 /// Parses `name=value,name=value` (the CLI's `--pose` and `--shape`).
-pub fn parse_parameters(text: &str, known: &[&str], what: &str) -> Result<BTreeMap<String, f64>, String> {
+pub fn parse_parameters(
+    text: &str,
+    known: &[&str],
+    what: &str,
+) -> Result<BTreeMap<String, f64>, String> {
     let mut out = BTreeMap::new();
     for part in text.split(',').map(str::trim).filter(|p| !p.is_empty()) {
-        let (k, v) = part.split_once('=').ok_or_else(|| format!("{what} '{part}': expected name=value"))?;
+        let (k, v) = part
+            .split_once('=')
+            .ok_or_else(|| format!("{what} '{part}': expected name=value"))?;
         let (k, v) = (k.trim(), v.trim());
         if !known.contains(&k) {
-            return Err(format!("unknown {what} parameter '{k}' (known: {})", known.join(", ")));
+            return Err(format!(
+                "unknown {what} parameter '{k}' (known: {})",
+                known.join(", ")
+            ));
         }
-        let x: f64 = v.parse().ok().filter(|x: &f64| x.is_finite()).ok_or_else(|| format!("{what} '{k}': '{v}' is not a number"))?;
+        let x: f64 = v
+            .parse()
+            .ok()
+            .filter(|x: &f64| x.is_finite())
+            .ok_or_else(|| format!("{what} '{k}': '{v}' is not a number"))?;
         out.insert(k.to_string(), x);
     }
     Ok(out)
@@ -156,10 +250,17 @@ pub fn pose(kind: Kind, params: &BTreeMap<String, f64>) -> Pose {
     let joints = params
         .iter()
         .filter_map(|(k, &deg)| {
-            table.iter().find(|t| t.0 == k).map(|&(_, bone, axis, sign)| (bone.to_string(), axis, sign * deg))
+            table
+                .iter()
+                .find(|t| t.0 == k)
+                .map(|&(_, bone, axis, sign)| (bone.to_string(), axis, sign * deg))
         })
         .collect();
-    Pose { joints, scale: 1.0, ..Default::default() }
+    Pose {
+        joints,
+        scale: 1.0,
+        ..Default::default()
+    }
 }
 
 /// The displacement field of one shape parameter: #V vectors; `rest + (p - 1) * field`
@@ -178,7 +279,11 @@ pub fn shape_field(fig: &Figure, kind: Kind, name: &str) -> Option<Vec<V3>> {
         (p - (a + ab * s), s, ab)
     };
     let of_group = |i: usize, groups: &[&str]| -> f64 {
-        fig.weights[i].iter().filter(|(b, _)| groups.contains(&bones[*b as usize].group.as_str())).map(|x| x.1).sum()
+        fig.weights[i]
+            .iter()
+            .filter(|(b, _)| groups.contains(&bones[*b as usize].group.as_str()))
+            .map(|x| x.1)
+            .sum()
     };
     let by_bones = |i: usize, names: &[&str], f: &dyn Fn(usize) -> V3| -> V3 {
         fig.weights[i]
@@ -201,10 +306,12 @@ pub fn shape_field(fig: &Figure, kind: Kind, name: &str) -> Option<Vec<V3>> {
                     let (off, _, _) = axis(b, &p);
                     off + (p - bones[b].head) * 0.3
                 }),
-                (Kind::Body, "arm_length") => by_bones(i, &["upper_arm", "forearm", "hand"], &|_| {
-                    let shoulder = V3::new(0.0, 0.22 * p.y.signum(), 1.36);
-                    (p - shoulder) * 0.5
-                }),
+                (Kind::Body, "arm_length") => {
+                    by_bones(i, &["upper_arm", "forearm", "hand"], &|_| {
+                        let shoulder = V3::new(0.0, 0.22 * p.y.signum(), 1.36);
+                        (p - shoulder) * 0.5
+                    })
+                }
                 // broader shoulders: the upper torso widens (not the head) and the arms
                 // move out with it
                 (Kind::Body, "shoulders") => {
@@ -222,10 +329,15 @@ pub fn shape_field(fig: &Figure, kind: Kind, name: &str) -> Option<Vec<V3>> {
 }
 
 /// Rest positions reshaped by named factors (1 = unchanged).
-pub fn reshape(fig: &Figure, kind: Kind, factors: &BTreeMap<String, f64>) -> Result<Vec<V3>, String> {
+pub fn reshape(
+    fig: &Figure,
+    kind: Kind,
+    factors: &BTreeMap<String, f64>,
+) -> Result<Vec<V3>, String> {
     let mut out = fig.mesh.vertices.clone();
     for (name, &f) in factors {
-        let field = shape_field(fig, kind, name).ok_or_else(|| format!("unknown shape parameter '{name}'"))?;
+        let field = shape_field(fig, kind, name)
+            .ok_or_else(|| format!("unknown shape parameter '{name}'"))?;
         for (o, d) in out.iter_mut().zip(field) {
             *o += d * (f - 1.0);
         }
@@ -234,7 +346,12 @@ pub fn reshape(fig: &Figure, kind: Kind, factors: &BTreeMap<String, f64>) -> Res
 }
 
 /// A template reshaped, then posed: a subject with the template's vertex order.
-pub fn subject(fig: &Figure, kind: Kind, shape: &BTreeMap<String, f64>, pose: &Pose) -> Result<Mesh, String> {
+pub fn subject(
+    fig: &Figure,
+    kind: Kind,
+    shape: &BTreeMap<String, f64>,
+    pose: &Pose,
+) -> Result<Mesh, String> {
     let mut reshaped = fig.clone();
     reshaped.mesh.vertices = reshape(fig, kind, shape)?;
     let mut m = fig.mesh.clone();
