@@ -9,4 +9,5 @@ pub mod mesh;
 pub mod model;
 pub mod render;
 pub mod rig;
+pub mod stereo;
 pub mod synth;

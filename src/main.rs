@@ -100,6 +100,24 @@ enum Cmd {
         #[arg(long)]
         subject: Option<String>,
     },
+    /// Render capture sets of a subject as the rig's cameras would see it (speckle
+    /// projector, lens distortion, sensor noise), with ground truth and calibrations.
+    Simulate {
+        #[arg(long)]
+        rig: PathBuf,
+        /// a mesh file, or `pig` / `body` (posed with --pose)
+        #[arg(long)]
+        subject: String,
+        #[arg(long, default_value = "")]
+        pose: String,
+        #[arg(long, default_value_t = 1)]
+        captures: usize,
+        /// sensor noise, grey levels (standard deviation)
+        #[arg(long, default_value_t = 2.0)]
+        noise: f64,
+        #[arg(long)]
+        out: PathBuf,
+    },
     /// List V4L2 cameras with their stable names, formats, sizes and controls.
     Cameras,
     /// Statistical shape model over conformed meshes.
@@ -345,6 +363,19 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
                 if set.attempts == 1 { "" } else { "s" }
             );
             println!("wrote {}", set.dir.display());
+        }
+        Cmd::Simulate {
+            rig,
+            subject,
+            pose,
+            captures,
+            noise,
+            out,
+        } => {
+            for d in jobs::simulate(&rig, &subject, &pose, captures, noise, &out)? {
+                println!("wrote {}", d.display());
+            }
+            println!("wrote {}", out.join("calibration").display());
         }
         Cmd::Cameras => {
             let list = conformd::rig::v4l2::list_devices();

@@ -5,6 +5,7 @@
 
 pub mod cases;
 pub mod figure;
+pub mod rig;
 pub mod scanner;
 pub mod templates;
 

@@ -1,0 +1,277 @@
+//! A virtual rig: stereo pods around a crate or booth, each with a speckle projector, that
+//! render what their cameras would see of a subject mesh: the projected random-speckle
+//! texture on the surface, simple shading, the lens distortion of the rig file, and sensor
+//! noise. Every surface point carries the same speckle in both cameras of a pod, as a real
+//! projector's pattern does, so the images are fit for stereo matching; ground truth comes
+//! from the mesh.
+
+use crate::mesh::{Mesh, V3};
+use crate::stereo::calib::{Intrinsics, Pod, Pose};
+use nalgebra::{Matrix3, Vector2};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal};
+use rayon::prelude::*;
+use std::path::Path;
+
+/// One pod in a rig file.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PodSpec {
+    pub id: String,
+    /// image width and height, pixels
+    pub image: [u32; 2],
+    pub focal_px: f64,
+    /// principal point (default: the image centre)
+    pub principal: Option<[f64; 2]>,
+    /// k1 k2 p1 p2 k3
+    #[serde(default)]
+    pub distortion: [f64; 5],
+    /// distance between the two cameras' centres, along the left camera's x axis (m)
+    pub baseline: f64,
+    /// the left camera's centre in the rig frame (m)
+    pub position: [f64; 3],
+    pub look_at: [f64; 3],
+    #[serde(default = "up")]
+    pub up: [f64; 3],
+    /// size of a projected speckle, in image pixels at the look-at distance
+    #[serde(default = "speckle")]
+    pub speckle_px: f64,
+}
+
+fn up() -> [f64; 3] {
+    [0.0, 0.0, 1.0]
+}
+fn speckle() -> f64 {
+    3.0
+}
+
+/// A rig file (`config/rig.example.toml`).
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RigFile {
+    pub name: String,
+    pub pods: Vec<PodSpec>,
+    /// the part of the rig frame scans are cropped to: [min, max] corners (m)
+    pub working_volume: Option<[[f64; 3]; 2]>,
+}
+
+impl RigFile {
+    pub fn load(path: &Path) -> Result<RigFile, String> {
+        let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
+        let rig: RigFile = toml::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))?;
+        if rig.pods.is_empty() {
+            return Err(format!("{}: no [[pods]]", path.display()));
+        }
+        for p in &rig.pods {
+            if !(p.baseline > 0.0 && p.focal_px > 0.0 && p.image[0] >= 16 && p.image[1] >= 16) {
+                return Err(format!(
+                    "{}: pod {}: baseline, focal_px and image must be positive",
+                    path.display(),
+                    p.id
+                ));
+            }
+        }
+        Ok(rig)
+    }
+
+    /// The pods as cameras: the right camera parallel to the left, `baseline` along its x.
+    pub fn pods(&self) -> Vec<Pod> {
+        self.pods
+            .iter()
+            .map(|s| {
+                let [w, h] = s.image;
+                let [cx, cy] = s.principal.unwrap_or([w as f64 / 2.0, h as f64 / 2.0]);
+                let k = Intrinsics {
+                    width: w,
+                    height: h,
+                    fx: s.focal_px,
+                    fy: s.focal_px,
+                    cx,
+                    cy,
+                    dist: s.distortion,
+                };
+                let left_pose =
+                    Pose::look_at(V3::from(s.position), V3::from(s.look_at), V3::from(s.up));
+                Pod {
+                    id: s.id.clone(),
+                    left: k,
+                    right: k,
+                    left_pose,
+                    r: Matrix3::identity(),
+                    t: V3::new(-s.baseline, 0.0, 0.0),
+                }
+            })
+            .collect()
+    }
+}
+
+/// One rendered camera image (8-bit grey), and for ground truth the surface point each
+/// pixel sees.
+pub struct Rendered {
+    pub pod: String,
+    pub side: &'static str,
+    pub width: u32,
+    pub height: u32,
+    pub pixels: Vec<u8>,
+    pub points: Vec<Option<V3>>,
+}
+
+/// Smooth random speckle: value noise over a lattice, sharpened into blobs.
+fn speckle_value(u: f64, v: f64, seed: u64) -> f64 {
+    let hash = |i: i64, j: i64| -> f64 {
+        let mut h = (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
+            ^ (j as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F)
+            ^ seed;
+        h ^= h >> 31;
+        h = h.wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        h ^= h >> 29;
+        (h >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let (i, j) = (u.floor() as i64, v.floor() as i64);
+    let (fu, fv) = (u - u.floor(), v - v.floor());
+    let s = |t: f64| t * t * (3.0 - 2.0 * t);
+    let (a, b, c, d) = (
+        hash(i, j),
+        hash(i + 1, j),
+        hash(i, j + 1),
+        hash(i + 1, j + 1),
+    );
+    let x = a + (b - a) * s(fu) + (c - a) * s(fv) + (a - b - c + d) * s(fu) * s(fv);
+    ((x - 0.5) * 4.0).tanh() * 0.5 + 0.5
+}
+
+/// Renders one camera of `pod` seeing `subject`, lit by the pod's projector (a pinhole
+/// midway between the cameras, looking where the left camera looks).
+pub fn render_camera(
+    pod: &Pod,
+    spec: &PodSpec,
+    right: bool,
+    subject: &Mesh,
+    noise: f64,
+    seed: u64,
+) -> Rendered {
+    let k: Intrinsics = if right { pod.right } else { pod.left };
+    let pose = if right {
+        pod.right_pose()
+    } else {
+        pod.left_pose
+    };
+    let (w, h) = (k.width as usize, k.height as usize);
+    // an undistorted canvas with a margin: barrel distortion shows more than the pinhole
+    let margin = 0.3;
+    let (mw, mh) = ((w as f64 * margin) as usize, (h as f64 * margin) as usize);
+    let (cw, ch) = (w + 2 * mw, h + 2 * mh);
+    let cam: Vec<V3> = subject.vertices.iter().map(|p| pose.to_camera(p)).collect();
+    let px = |c: &V3| {
+        V3::new(
+            k.fx * c.x / c.z + k.cx + mw as f64,
+            k.fy * c.y / c.z + k.cy + mh as f64,
+            c.z,
+        )
+    };
+    let mut depth = vec![f64::INFINITY; cw * ch];
+    let mut hit: Vec<Option<(u32, f64, f64)>> = vec![None; cw * ch];
+    for (ti, t) in subject.triangles.iter().enumerate() {
+        let [a, b, c] = t.map(|i| cam[i as usize]);
+        if a.z <= 1e-6 || b.z <= 1e-6 || c.z <= 1e-6 {
+            continue;
+        }
+        let (pa, pb, pc) = (px(&a), px(&b), px(&c));
+        let area = (pb.x - pa.x) * (pc.y - pa.y) - (pb.y - pa.y) * (pc.x - pa.x);
+        if area.abs() < 1e-12 {
+            continue;
+        }
+        let x0 = pa.x.min(pb.x).min(pc.x).floor().max(0.0) as usize;
+        let x1 = (pa.x.max(pb.x).max(pc.x).ceil() as usize).min(cw - 1);
+        let y0 = pa.y.min(pb.y).min(pc.y).floor().max(0.0) as usize;
+        let y1 = (pa.y.max(pb.y).max(pc.y).ceil() as usize).min(ch - 1);
+        for y in y0..=y1 {
+            for x in x0..=x1 {
+                let (fx, fy) = (x as f64 + 0.5, y as f64 + 0.5);
+                let w0 = ((pb.x - fx) * (pc.y - fy) - (pb.y - fy) * (pc.x - fx)) / area;
+                let w1 = ((pc.x - fx) * (pa.y - fy) - (pc.y - fy) * (pa.x - fx)) / area;
+                let w2 = 1.0 - w0 - w1;
+                if w0 < 0.0 || w1 < 0.0 || w2 < 0.0 {
+                    continue;
+                }
+                // perspective-correct depth
+                let z = 1.0 / (w0 / a.z + w1 / b.z + w2 / c.z);
+                let i = y * cw + x;
+                if z < depth[i] {
+                    depth[i] = z;
+                    hit[i] = Some((ti as u32, w0 * z / a.z, w1 * z / b.z));
+                }
+            }
+        }
+    }
+    // the projector
+    let centre = (pod.left_pose.centre() + pod.right_pose().centre()) / 2.0;
+    let proj = Pose::look_at(centre, V3::from(spec.look_at), V3::from(spec.up));
+    let scale = spec.focal_px / spec.speckle_px;
+    let pattern_seed = seed_of(&pod.id);
+    // per output pixel: the surface point it sees and that point's triangle
+    let seen: Vec<Option<(V3, u32)>> = (0..w * h)
+        .into_par_iter()
+        .map(|i| {
+            let (u, v) = ((i % w) as f64 + 0.5, (i / w) as f64 + 0.5);
+            let n = k.undistort(Vector2::new((u - k.cx) / k.fx, (v - k.cy) / k.fy));
+            let (x, y) = (k.fx * n.x + k.cx + mw as f64, k.fy * n.y + k.cy + mh as f64);
+            if x < 0.0 || y < 0.0 || x >= cw as f64 || y >= ch as f64 {
+                return None;
+            }
+            let (t, b0, b1) = hit[y as usize * cw + x as usize]?;
+            let [ia, ib, ic] = subject.triangles[t as usize].map(|i| subject.vertices[i as usize]);
+            Some((ia * b0 + ib * b1 + ic * (1.0 - b0 - b1), t))
+        })
+        .collect();
+    let mut rng =
+        ChaCha8Rng::seed_from_u64(seed ^ if right { 0x5a5a } else { 0xa5a5 } ^ pattern_seed);
+    let gauss = Normal::new(0.0, noise.max(0.0)).expect("valid sigma");
+    let mut pixels = Vec::with_capacity(w * h);
+    for s in &seen {
+        let value = match s {
+            None => 12.0,
+            Some((p, t)) => {
+                let n = subject.face_normal_scaled(*t as usize).normalize();
+                let pc = proj.to_camera(p);
+                let to_proj = (centre - p).normalize();
+                let lit = n.dot(&to_proj).abs();
+                let s = if pc.z > 0.0 {
+                    speckle_value(pc.x / pc.z * scale, pc.y / pc.z * scale, pattern_seed)
+                } else {
+                    0.0
+                };
+                25.0 + 200.0 * lit * (0.25 + 0.75 * s)
+            }
+        };
+        pixels.push((value + gauss.sample(&mut rng)).round().clamp(0.0, 255.0) as u8);
+    }
+    let points = seen.into_iter().map(|s| s.map(|(p, _)| p)).collect();
+    Rendered {
+        pod: pod.id.clone(),
+        side: if right { "right" } else { "left" },
+        width: k.width,
+        height: k.height,
+        pixels,
+        points,
+    }
+}
+
+fn seed_of(id: &str) -> u64 {
+    id.bytes().fold(0xcbf29ce484222325u64, |h, b| {
+        (h ^ b as u64).wrapping_mul(0x100000001b3)
+    })
+}
+
+/// Renders every camera of the rig.
+pub fn render_rig(rig: &RigFile, subject: &Mesh, noise: f64, seed: u64) -> Vec<Rendered> {
+    let pods = rig.pods();
+    let mut out = Vec::new();
+    for (pod, spec) in pods.iter().zip(&rig.pods) {
+        for right in [false, true] {
+            out.push(render_camera(pod, spec, right, subject, noise, seed));
+        }
+    }
+    out
+}
