@@ -748,3 +748,136 @@ pub fn simulate(
     }
     Ok(dirs)
 }
+
+/// Reconstructs a capture set into a scan in the rig frame: every pod of the rig file
+/// whose two images the set holds (cameras `<pod>-left` / `<pod>-right`, or the
+/// manifest's pod and side) is rectified, matched and reprojected, then all are fused.
+/// Writes the scan (PLY point cloud with normals) and, if asked, a JSON report.
+pub fn reconstruct(
+    capture: &Path,
+    rig_path: &Path,
+    out: &Path,
+    report_path: Option<&Path>,
+) -> Result<crate::stereo::reconstruct::ReconstructReport, JobError> {
+    use crate::stereo::reconstruct::{
+        self as rc, PodReport, ReconstructOptions, ReconstructReport,
+    };
+    let t = std::time::Instant::now();
+    let rig = crate::synth::rig::RigFile::load(rig_path).map_err(JobError::Usage)?;
+    let manifest =
+        crate::rig::capture::Manifest::read(capture).map_err(|e| JobError::Usage(e.to_string()))?;
+    let opts = ReconstructOptions {
+        working_volume: rig.working_volume,
+        ..Default::default()
+    };
+    let mut report = ReconstructReport::default();
+    let mut points = Vec::new();
+    for pod in rig.pods() {
+        let image = |side: &str| -> Result<Vec<u8>, JobError> {
+            let cam = manifest
+                .cameras
+                .iter()
+                .find(|c| c.pod == pod.id && c.side == side)
+                .ok_or_else(|| {
+                    JobError::Usage(format!(
+                        "{}: no {side} image of pod {} in the capture set",
+                        capture.display(),
+                        pod.id
+                    ))
+                })?;
+            let path = capture.join(&cam.file);
+            let img = image::open(&path)
+                .map_err(|e| {
+                    JobError::Usage(format!("camera {}: {}: {e}", cam.id, path.display()))
+                })?
+                .to_luma8();
+            if (img.width(), img.height()) != (pod.left.width, pod.left.height) {
+                return Err(JobError::Usage(format!(
+                    "camera {}: {} is {}x{}, the calibration is for {}x{}",
+                    cam.id,
+                    path.display(),
+                    img.width(),
+                    img.height(),
+                    pod.left.width,
+                    pod.left.height
+                )));
+            }
+            Ok(img.into_raw())
+        };
+        let (l, r) = (image("left")?, image("right")?);
+        let mut pr = PodReport {
+            pod: pod.id.clone(),
+            ..Default::default()
+        };
+        let pts = rc::pod_points(&pod, &l, &r, &opts.sgbm, &mut pr)
+            .map_err(|e| JobError::Usage(format!("pod {}: OpenCV: {e}", pod.id)))?;
+        if pts.is_empty() {
+            return Err(JobError::Usage(format!(
+                "pod {}: the disparity map is empty (no surface matched)",
+                pod.id
+            )));
+        }
+        points.extend(pts);
+        report.pods.push(pr);
+    }
+    let scan = rc::fuse(points, &opts, &mut report);
+    report.seconds_total = t.elapsed().as_secs_f64();
+    mesh::write_mesh(out, &scan)?;
+    if let Some(p) = report_path {
+        write_report(p, &report)?;
+    }
+    Ok(report)
+}
+
+/// Disparity of an already-rectified pair, written as PFM (or 16-bit PNG x16 for .png).
+pub fn disparity(
+    left: &Path,
+    right: &Path,
+    opts: &crate::stereo::disparity::SgbmOptions,
+    out: &Path,
+) -> Result<f64, JobError> {
+    let read = |p: &Path| -> Result<image::GrayImage, JobError> {
+        Ok(image::open(p)
+            .map_err(|e| JobError::Usage(format!("{}: {e}", p.display())))?
+            .to_luma8())
+    };
+    let (l, r) = (read(left)?, read(right)?);
+    if l.dimensions() != r.dimensions() {
+        return Err(JobError::Usage(format!(
+            "{} is {:?} but {} is {:?}: a rectified pair has one size",
+            left.display(),
+            l.dimensions(),
+            right.display(),
+            r.dimensions()
+        )));
+    }
+    let d =
+        crate::stereo::disparity::disparity(l.as_raw(), r.as_raw(), l.width(), l.height(), opts)
+            .map_err(JobError::Usage)?;
+    let bytes = if out
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("png"))
+    {
+        let px: Vec<u16> = d
+            .values
+            .iter()
+            .map(|v| {
+                if v.is_finite() {
+                    (v * 16.0).round().clamp(0.0, 65535.0) as u16
+                } else {
+                    0
+                }
+            })
+            .collect();
+        let img = image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_raw(d.width, d.height, px)
+            .expect("sized");
+        let mut b = Vec::new();
+        img.write_to(&mut std::io::Cursor::new(&mut b), image::ImageFormat::Png)
+            .expect("in-memory PNG");
+        b
+    } else {
+        d.pfm()
+    };
+    write_atomic(out, &bytes)?;
+    Ok(d.valid_share())
+}

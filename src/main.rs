@@ -118,6 +118,27 @@ enum Cmd {
         #[arg(long)]
         out: PathBuf,
     },
+    /// Reconstruct a capture set into a fused scan in the rig frame (OpenCV SGBM).
+    Reconstruct {
+        capture: PathBuf,
+        #[arg(long)]
+        rig: PathBuf,
+        #[arg(long)]
+        out: PathBuf,
+        #[arg(long)]
+        report: Option<PathBuf>,
+    },
+    /// Disparity of an already-rectified pair (PFM, or 16-bit PNG x16 for .png).
+    Disparity {
+        left: PathBuf,
+        right: PathBuf,
+        #[arg(long)]
+        out: PathBuf,
+        #[arg(long, default_value_t = 128)]
+        num_disparities: i32,
+        #[arg(long, default_value_t = 5)]
+        block_size: i32,
+    },
     /// List V4L2 cameras with their stable names, formats, sizes and controls.
     Cameras,
     /// Statistical shape model over conformed meshes.
@@ -376,6 +397,49 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
                 println!("wrote {}", d.display());
             }
             println!("wrote {}", out.join("calibration").display());
+        }
+        Cmd::Reconstruct {
+            capture,
+            rig,
+            out,
+            report,
+        } => {
+            let r = jobs::reconstruct(&capture, &rig, &out, report.as_deref())?;
+            for p in &r.pods {
+                println!(
+                    "pod {}: {} points, {:.0}% valid disparity (rectify {:.2} s, disparity {:.2} s, reproject {:.2} s)",
+                    p.pod,
+                    p.points,
+                    p.valid_disparity_share * 100.0,
+                    p.seconds_rectify,
+                    p.seconds_disparity,
+                    p.seconds_reproject
+                );
+            }
+            println!(
+                "fused {} points, {} in the working volume, {} after voxels, {} after outliers; {:.2} s",
+                r.fused_points, r.after_crop, r.after_voxel, r.after_outliers, r.seconds_total
+            );
+            println!("wrote {}", out.display());
+        }
+        Cmd::Disparity {
+            left,
+            right,
+            out,
+            num_disparities,
+            block_size,
+        } => {
+            let o = conformd::stereo::disparity::SgbmOptions {
+                num_disparities,
+                block_size,
+                ..Default::default()
+            };
+            let share = jobs::disparity(&left, &right, &o, &out)?;
+            println!(
+                "{:.1}% of pixels have a disparity\nwrote {}",
+                share * 100.0,
+                out.display()
+            );
         }
         Cmd::Cameras => {
             let list = conformd::rig::v4l2::list_devices();

@@ -1,5 +1,6 @@
-//! Stereo: pod calibrations and (to come with the stereo issue) rectification, disparity
-//! through OpenCV, reprojection and fusion. For now it owns the camera model the virtual
-//! rig renders with and the calibration files in OpenCV's YAML form.
+//! Stereo: the camera model and pod calibrations (OpenCV YAML), disparity by OpenCV's
+//! SGBM, and reconstruction of a capture set into a fused scan in the rig frame.
 
 pub mod calib;
+pub mod disparity;
+pub mod reconstruct;

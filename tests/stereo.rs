@@ -1,0 +1,157 @@
+//! Stereo reconstruction on simulated captures (release builds): a two-pod capture of a
+//! pig reconstructs a scan close to the true surface that covers what the cameras see;
+//! conformed with the template, it gives dense correspondence against the ground truth.
+
+use conformd::conform::correspond::ScanSurface;
+use conformd::conform::{ConformOptions, conform};
+use conformd::mesh::landmarks::{Landmark, LandmarkPos};
+use conformd::mesh::{Mesh, V3, read_mesh};
+use conformd::synth::rig::RigFile;
+use conformd::synth::{scanner, templates};
+use std::path::Path;
+
+#[test]
+#[cfg_attr(debug_assertions, ignore = "heavy: runs in release builds")]
+fn simulate_reconstruct_conform() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let rig_path = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/rig.example.toml");
+    let sets = conformd::jobs::simulate(&rig_path, "pig", "swing=8,nod=-6", 1, 2.0, &d.join("sim"))
+        .unwrap();
+    let report =
+        conformd::jobs::reconstruct(&sets[0], &rig_path, &d.join("scan.ply"), None).unwrap();
+    let scan = read_mesh(&d.join("scan.ply")).unwrap();
+    let truth = read_mesh(&sets[0].join("truth.ply")).unwrap();
+    let diag = truth.diagonal();
+
+    // accuracy: scan points against the true surface
+    let surface = ScanSurface::new(&truth).unwrap();
+    let mut dist: Vec<f64> = scan
+        .vertices
+        .iter()
+        .map(|p| surface.distance(p) / diag)
+        .collect();
+    dist.sort_by(f64::total_cmp);
+    let mean = dist.iter().sum::<f64>() / dist.len() as f64;
+    let p95 = dist[dist.len() * 95 / 100];
+    eprintln!(
+        "distance percentiles 10/50/90: {:.3}% {:.3}% {:.3}%",
+        dist[dist.len() / 10] * 100.0,
+        dist[dist.len() / 2] * 100.0,
+        dist[dist.len() * 9 / 10] * 100.0
+    );
+
+    // coverage: the true surface the cameras see, by area, with scan points near it
+    let rig = RigFile::load(&rig_path).unwrap();
+    let centres: Vec<V3> = rig
+        .pods()
+        .iter()
+        .flat_map(|p| [p.left_pose.centre(), p.right_pose().centre()])
+        .collect();
+    let seen = scanner::visible_triangles(&truth, &centres);
+    let arr: Vec<[f64; 3]> = scan.vertices.iter().map(|p| [p.x, p.y, p.z]).collect();
+    let tree: kiddo::ImmutableKdTree<f64, 3> = kiddo::ImmutableKdTree::new_from_slice(&arr);
+    let (mut seen_area, mut covered) = (0.0, 0.0);
+    for t in (0..truth.triangles.len()).filter(|&t| seen[t]) {
+        let a = truth.face_normal_scaled(t).norm() / 2.0;
+        let c = truth.corners(t).iter().sum::<V3>() / 3.0;
+        seen_area += a;
+        if tree
+            .nearest_one::<kiddo::SquaredEuclidean>(&[c.x, c.y, c.z])
+            .distance
+            .sqrt()
+            < 0.01 * diag
+        {
+            covered += a;
+        }
+    }
+    let coverage = covered / seen_area;
+    eprintln!(
+        "stereo: {} points ({} fused), mean distance {:.3}% p95 {:.3}% of the diagonal, coverage {:.1}% of the seen surface; valid disparity {:?}",
+        scan.vertices.len(),
+        report.fused_points,
+        mean * 100.0,
+        p95 * 100.0,
+        coverage * 100.0,
+        report
+            .pods
+            .iter()
+            .map(|p| format!("{:.0}%", p.valid_disparity_share * 100.0))
+            .collect::<Vec<_>>()
+    );
+    assert!(mean < 0.005, "mean distance {:.3}%", mean * 100.0);
+    assert!(p95 < 0.015, "95th percentile {:.3}%", p95 * 100.0);
+    assert!(coverage >= 0.8, "coverage {:.1}%", coverage * 100.0);
+
+    // end to end: conform the rest template onto the reconstructed scan
+    let fig = templates::build(templates::Kind::Pig, 20_000);
+    assert_eq!(
+        fig.mesh.vertices.len(),
+        truth.vertices.len(),
+        "the simulated pig is this template posed"
+    );
+    let lms = fig.landmarks();
+    let scan_lms: Vec<Landmark> = lms
+        .iter()
+        .map(|l| match l.pos {
+            LandmarkPos::Vertex(v) => Landmark {
+                name: l.name.clone(),
+                pos: LandmarkPos::Point(truth.vertices[v as usize]),
+            },
+            p => Landmark {
+                name: l.name.clone(),
+                pos: p,
+            },
+        })
+        .collect();
+    let r = conform(
+        &fig.mesh,
+        &scan,
+        Some((&lms, &scan_lms)),
+        &ConformOptions::default(),
+        &mut |_| {},
+    )
+    .unwrap();
+    let err = r
+        .mesh
+        .vertices
+        .iter()
+        .zip(&truth.vertices)
+        .map(|(a, b)| (a - b).norm())
+        .sum::<f64>()
+        / truth.vertices.len() as f64
+        / diag;
+    eprintln!(
+        "simulate -> reconstruct -> conform: mean correspondence error {:.3}% of the diagonal",
+        err * 100.0
+    );
+    assert!(err < 0.02, "correspondence error {:.3}%", err * 100.0);
+    let _ = Mesh::default();
+}
+
+#[test]
+fn disparity_rejects_bad_pairs_clearly() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    image::GrayImage::new(64, 48).save(d.join("l.png")).unwrap();
+    image::GrayImage::new(60, 48).save(d.join("r.png")).unwrap();
+    let o = conformd::stereo::disparity::SgbmOptions::default();
+    let e = conformd::jobs::disparity(&d.join("l.png"), &d.join("r.png"), &o, &d.join("d.pfm"))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("r.png") && e.contains("one size"), "{e}");
+    let e = conformd::jobs::disparity(
+        &d.join("l.png"),
+        &d.join("missing.png"),
+        &o,
+        &d.join("d.pfm"),
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("missing.png"), "{e}");
+    let bad = conformd::stereo::disparity::SgbmOptions {
+        num_disparities: 100,
+        ..o
+    };
+    assert!(bad.validate().unwrap_err().contains("multiple of 16"));
+}
