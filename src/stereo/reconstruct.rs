@@ -61,6 +61,9 @@ pub struct PodReport {
     pub seconds_rectify: f64,
     pub seconds_disparity: f64,
     pub seconds_reproject: f64,
+    /// time in conformd's own code (image copies, masking, frame changes), the rest of
+    /// the pod's time being OpenCV's
+    pub seconds_own: f64,
 }
 
 fn mat3(m: &nalgebra::Matrix3<f64>) -> opencv::Result<Mat> {
@@ -116,7 +119,10 @@ pub fn pod_points(
         &mut roi1,
         &mut roi2,
     )?;
-    let rectify = |m: &Mat, d: &Mat, rr: &Mat, pp: &Mat, px: &[u8]| -> opencv::Result<Mat> {
+    let tc = Instant::now();
+    let (lm, rm) = (gray_mat(left, w, h)?, gray_mat(right, w, h)?);
+    let own_copies = tc.elapsed().as_secs_f64();
+    let rectify = |m: &Mat, d: &Mat, rr: &Mat, pp: &Mat, img: &Mat| -> opencv::Result<Mat> {
         let (mut map1, mut map2) = (Mat::default(), Mat::default());
         calib3d::init_undistort_rectify_map(
             m,
@@ -130,7 +136,7 @@ pub fn pod_points(
         )?;
         let mut out = Mat::default();
         imgproc::remap(
-            &gray_mat(px, w, h)?,
+            img,
             &mut out,
             &map1,
             &map2,
@@ -141,8 +147,8 @@ pub fn pod_points(
         Ok(out)
     };
     let (lr, rr) = (
-        rectify(&m1, &d1, &r1, &p1, left)?,
-        rectify(&m2, &d2, &r2, &p2, right)?,
+        rectify(&m1, &d1, &r1, &p1, &lm)?,
+        rectify(&m2, &d2, &r2, &p2, &rm)?,
     );
     report.seconds_rectify = t0.elapsed().as_secs_f64();
     let t1 = Instant::now();
@@ -177,6 +183,8 @@ pub fn pod_points(
         core::Point::new(-1, -1),
         core::BORDER_REFLECT,
     )?;
+    // from here on the work is conformd's own
+    let own_start = Instant::now();
     let (m, m2) = (mean.data_typed::<f32>()?, mean_sq.data_typed::<f32>()?);
     let min_var = (o.min_contrast * o.min_contrast) as f32;
     // rectified left camera -> left camera -> rig frame
@@ -201,6 +209,7 @@ pub fn pod_points(
         out.push((rt * (cam - pose.t), centre));
     }
     report.points = out.len();
+    report.seconds_own = own_start.elapsed().as_secs_f64() + own_copies;
     report.seconds_reproject = t2.elapsed().as_secs_f64();
     Ok(out)
 }
