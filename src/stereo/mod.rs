@@ -2,5 +2,6 @@
 //! SGBM, and reconstruction of a capture set into a fused scan in the rig frame.
 
 pub mod calib;
+pub mod calibrate;
 pub mod disparity;
 pub mod reconstruct;

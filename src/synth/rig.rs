@@ -275,3 +275,120 @@ pub fn render_rig(rig: &RigFile, subject: &Mesh, noise: f64, seed: u64) -> Vec<R
     }
     out
 }
+
+/// A chessboard for calibration: `cols` x `rows` inner corners, squares of `square` m,
+/// one white square of margin around; its own frame has the inner corners at
+/// (i * square, j * square, 0) for i in 1..=cols, j in 1..=rows.
+#[derive(Debug, Clone, Copy)]
+pub struct Chessboard {
+    pub cols: u32,
+    pub rows: u32,
+    pub square: f64,
+}
+
+/// Renders a chessboard at `board` (board frame to rig frame) as one camera of `pod`
+/// sees it: 2x2 supersampled, lens distortion and noise as for subjects.
+pub fn render_chessboard(
+    pod: &Pod,
+    right: bool,
+    cb: &Chessboard,
+    board: &Pose,
+    noise: f64,
+    seed: u64,
+) -> Vec<u8> {
+    let k: Intrinsics = if right { pod.right } else { pod.left };
+    let pose = if right {
+        pod.right_pose()
+    } else {
+        pod.left_pose
+    };
+    let (w, h) = (k.width as usize, k.height as usize);
+    // board pose as x_board = B x_rig + b; camera ray in the rig frame
+    let (cr, centre) = (pose.r.transpose(), pose.centre());
+    let shade = |u: f64, v: f64| -> f64 {
+        let n = k.undistort(Vector2::new((u - k.cx) / k.fx, (v - k.cy) / k.fy));
+        let dir = cr * V3::new(n.x, n.y, 1.0);
+        let (o, d) = (board.to_camera(&centre), board.r * dir);
+        if d.z.abs() < 1e-12 {
+            return 40.0;
+        }
+        let s = -o.z / d.z;
+        if s <= 0.0 {
+            return 40.0;
+        }
+        let p = o + d * s;
+        let (a, b) = (
+            (p.x / cb.square).floor() as i64,
+            (p.y / cb.square).floor() as i64,
+        );
+        let inside = a >= -1 && b >= -1 && a <= cb.cols as i64 + 1 && b <= cb.rows as i64 + 1;
+        if !inside {
+            return 40.0;
+        }
+        let on_margin = a == -1 || b == -1 || a == cb.cols as i64 + 1 || b == cb.rows as i64 + 1;
+        if on_margin || (a + b).rem_euclid(2) == 1 {
+            220.0
+        } else {
+            25.0
+        }
+    };
+    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ if right { 77 } else { 11 });
+    let gauss = Normal::new(0.0, noise.max(0.0)).expect("valid sigma");
+    let vals: Vec<f64> = (0..w * h)
+        .into_par_iter()
+        .map(|i| {
+            let (u, v) = ((i % w) as f64, (i / w) as f64);
+            [(0.25, 0.25), (0.75, 0.25), (0.25, 0.75), (0.75, 0.75)]
+                .iter()
+                .map(|(du, dv)| shade(u + du, v + dv))
+                .sum::<f64>()
+                / 4.0
+        })
+        .collect();
+    vals.into_iter()
+        .map(|v| (v + gauss.sample(&mut rng)).round().clamp(0.0, 255.0) as u8)
+        .collect()
+}
+
+/// Board poses for calibration views of one pod: in front of the left camera at 0.6 to
+/// 1.0 of its look-at distance, spread over the image, tilted up to 35 degrees.
+pub fn chessboard_poses(
+    pod: &Pod,
+    spec: &PodSpec,
+    cb: &Chessboard,
+    views: usize,
+    seed: u64,
+) -> Vec<Pose> {
+    use rand::Rng;
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let centre = pod.left_pose.centre();
+    let dist = (V3::from(spec.look_at) - centre).norm();
+    let cam_to_rig = pod.left_pose.r.transpose();
+    let (bw, bh) = (
+        (cb.cols + 1) as f64 * cb.square,
+        (cb.rows + 1) as f64 * cb.square,
+    );
+    (0..views)
+        .map(|_| {
+            let d = dist * rng.random_range(0.55..0.9);
+            let half_w = d * (pod.left.width as f64 / 2.0) / pod.left.fx;
+            let half_h = d * (pod.left.height as f64 / 2.0) / pod.left.fy;
+            let cx = rng.random_range(-0.5..0.5) * (2.0 * half_w - bw).max(0.0);
+            let cy = rng.random_range(-0.5..0.5) * (2.0 * half_h - bh).max(0.0);
+            // board centre in camera coordinates, facing the camera, then tilted
+            let tilt = nalgebra::Rotation3::from_euler_angles(
+                rng.random_range(-35.0f64..35.0).to_radians(),
+                rng.random_range(-35.0f64..35.0).to_radians(),
+                rng.random_range(-20.0f64..20.0).to_radians(),
+            );
+            // board frame in camera coordinates: x right, y down, z away from the camera
+            let r_cam = *tilt.matrix();
+            let origin_cam = V3::new(cx, cy, d) - r_cam * V3::new(bw / 2.0, bh / 2.0, 0.0);
+            // rig -> board: x_board = R_cam^T (R x_rig + t - origin)
+            let r = r_cam.transpose() * pod.left_pose.r;
+            let t = r_cam.transpose() * (pod.left_pose.t - origin_cam);
+            let _ = cam_to_rig;
+            Pose { r, t }
+        })
+        .collect()
+}
