@@ -881,3 +881,137 @@ pub fn disparity(
     write_atomic(out, &bytes)?;
     Ok(d.valid_share())
 }
+
+/// Parses `9x6` (inner corners).
+pub fn parse_board(s: &str) -> Result<(u32, u32), JobError> {
+    let bad = || {
+        JobError::Usage(format!(
+            "board '{s}': expected COLSxROWS inner corners, e.g. 9x6"
+        ))
+    };
+    let (a, b) = s.split_once(['x', 'X']).ok_or_else(bad)?;
+    let (c, r): (u32, u32) = (a.parse().map_err(|_| bad())?, b.parse().map_err(|_| bad())?);
+    if c < 3 || r < 3 {
+        return Err(bad());
+    }
+    Ok((c, r))
+}
+
+/// Renders chessboard calibration views for every pod of the rig: `out/<pod>/leftNN.png`
+/// and `rightNN.png`, and the pod's true calibration beside them (`truth.yml`).
+pub fn simulate_chessboard(
+    rig_path: &Path,
+    board: &str,
+    square: f64,
+    views: usize,
+    out: &Path,
+) -> Result<Vec<PathBuf>, JobError> {
+    use crate::synth::rig::{Chessboard, RigFile, chessboard_poses, render_chessboard};
+    let (cols, rows) = parse_board(board)?;
+    if !(square > 0.0) {
+        return Err(JobError::Usage(format!(
+            "--square must be positive, got {square}"
+        )));
+    }
+    let rig = RigFile::load(rig_path).map_err(JobError::Usage)?;
+    let cb = Chessboard { cols, rows, square };
+    let mut dirs = Vec::new();
+    for (pod, spec) in rig.pods().iter().zip(&rig.pods) {
+        let dir = out.join(&pod.id);
+        std::fs::create_dir_all(&dir).map_err(|source| JobError::Io {
+            path: dir.display().to_string(),
+            source,
+        })?;
+        for (k, b) in chessboard_poses(pod, spec, &cb, views, 7)
+            .iter()
+            .enumerate()
+        {
+            for (right, name) in [(false, "left"), (true, "right")] {
+                let px = render_chessboard(pod, right, &cb, b, 1.0, k as u64);
+                let img =
+                    image::GrayImage::from_raw(pod.left.width, pod.left.height, px).expect("sized");
+                let mut bytes = Vec::new();
+                img.write_to(
+                    &mut std::io::Cursor::new(&mut bytes),
+                    image::ImageFormat::Png,
+                )
+                .expect("in-memory PNG");
+                write_atomic(&dir.join(format!("{name}{k:02}.png")), &bytes)?;
+            }
+        }
+        write_atomic(&dir.join("truth.yml"), pod.opencv_yaml().as_bytes())?;
+        dirs.push(dir);
+    }
+    Ok(dirs)
+}
+
+/// Calibrates one pod from chessboard pairs in `images` (`leftNN.*` with `rightNN.*`, or
+/// folders `left/` and `right/` with matching names) and writes OpenCV YAML.
+pub fn calibrate(
+    images: &Path,
+    board: &str,
+    square: f64,
+    out: &Path,
+) -> Result<crate::stereo::calibrate::CalibrationReport, JobError> {
+    let (cols, rows) = parse_board(board)?;
+    let list = |dir: &Path, prefix: &str| -> Vec<PathBuf> {
+        let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
+            .map(|rd| {
+                rd.filter_map(|e| e.ok())
+                    .map(|e| e.path())
+                    .filter(|p| {
+                        p.file_name()
+                            .is_some_and(|n| n.to_string_lossy().starts_with(prefix))
+                    })
+                    .collect()
+            })
+            .unwrap_or_default();
+        v.sort();
+        v
+    };
+    let (lefts, rights) = if images.join("left").is_dir() {
+        (
+            list(&images.join("left"), ""),
+            list(&images.join("right"), ""),
+        )
+    } else {
+        (list(images, "left"), list(images, "right"))
+    };
+    if lefts.is_empty() || lefts.len() != rights.len() {
+        return Err(JobError::Usage(format!(
+            "{}: found {} left and {} right images; expected pairs leftNN/rightNN (or folders left/ and right/)",
+            images.display(),
+            lefts.len(),
+            rights.len()
+        )));
+    }
+    let mut size = None;
+    let mut pairs = Vec::new();
+    for (l, r) in lefts.iter().zip(&rights) {
+        let read = |p: &Path| -> Result<image::GrayImage, JobError> {
+            Ok(image::open(p)
+                .map_err(|e| JobError::Usage(format!("{}: {e}", p.display())))?
+                .to_luma8())
+        };
+        let (a, b) = (read(l)?, read(r)?);
+        let dims = a.dimensions();
+        if b.dimensions() != dims || size.is_some_and(|s| s != dims) {
+            return Err(JobError::Usage(format!(
+                "{}: its size differs from the other views",
+                r.display()
+            )));
+        }
+        size = Some(dims);
+        pairs.push((a.into_raw(), b.into_raw()));
+    }
+    let (w, h) = size.expect("at least one pair");
+    let id = images
+        .file_name()
+        .map(|n| n.to_string_lossy().to_string())
+        .unwrap_or_else(|| "pod".into());
+    let (pod, report) = crate::stereo::calibrate::calibrate(&pairs, w, h, cols, rows, square, &id)
+        .map_err(JobError::Usage)?;
+    let yaml = crate::stereo::calibrate::full_yaml(&pod).map_err(JobError::Usage)?;
+    write_atomic(out, yaml.as_bytes())?;
+    Ok(report)
+}

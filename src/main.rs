@@ -106,8 +106,17 @@ enum Cmd {
         #[arg(long)]
         rig: PathBuf,
         /// a mesh file, or `pig` / `body` (posed with --pose)
+        #[arg(long, required_unless_present = "chessboard")]
+        subject: Option<String>,
+        /// render chessboard calibration views instead (inner corners, e.g. 9x6)
         #[arg(long)]
-        subject: String,
+        chessboard: Option<String>,
+        /// chessboard square size (m)
+        #[arg(long, default_value_t = 0.03)]
+        square: f64,
+        /// chessboard views per pod
+        #[arg(long, default_value_t = 15)]
+        views: usize,
         #[arg(long, default_value = "")]
         pose: String,
         #[arg(long, default_value_t = 1)]
@@ -115,6 +124,19 @@ enum Cmd {
         /// sensor noise, grey levels (standard deviation)
         #[arg(long, default_value_t = 2.0)]
         noise: f64,
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Stereo calibration of one pod from chessboard pairs (leftNN/rightNN images).
+    Calibrate {
+        #[arg(long)]
+        images: PathBuf,
+        /// inner corners, e.g. 9x6
+        #[arg(long)]
+        board: String,
+        /// square size (m)
+        #[arg(long)]
+        square: f64,
         #[arg(long)]
         out: PathBuf,
     },
@@ -388,15 +410,50 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
         Cmd::Simulate {
             rig,
             subject,
+            chessboard,
+            square,
+            views,
             pose,
             captures,
             noise,
             out,
         } => {
-            for d in jobs::simulate(&rig, &subject, &pose, captures, noise, &out)? {
-                println!("wrote {}", d.display());
+            if let Some(board) = chessboard {
+                for d in jobs::simulate_chessboard(&rig, &board, square, views, &out)? {
+                    println!("wrote {}", d.display());
+                }
+            } else {
+                let subject = subject.expect("clap requires it");
+                for d in jobs::simulate(&rig, &subject, &pose, captures, noise, &out)? {
+                    println!("wrote {}", d.display());
+                }
+                println!("wrote {}", out.join("calibration").display());
             }
-            println!("wrote {}", out.join("calibration").display());
+        }
+        Cmd::Calibrate {
+            images,
+            board,
+            square,
+            out,
+        } => {
+            let r = jobs::calibrate(&images, &board, square, &out)?;
+            println!(
+                "RMS reprojection error {:.3} px over {} of {} views; baseline {:.4}",
+                r.rms,
+                r.used.len(),
+                r.views,
+                r.baseline
+            );
+            for (v, e) in r.used.iter().zip(&r.per_view_left) {
+                println!("  view {v:>2}: {e:.3} px");
+            }
+            if !r.skipped.is_empty() {
+                println!(
+                    "  skipped (board not found in both images): {:?}",
+                    r.skipped
+                );
+            }
+            println!("wrote {}", out.display());
         }
         Cmd::Reconstruct {
             capture,

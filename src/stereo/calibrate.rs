@@ -185,3 +185,86 @@ pub fn calibrate(
     };
     run().map_err(|e| format!("OpenCV: {e}"))?
 }
+
+/// The pod's calibration with everything OpenCV's stereo tools read: M1 D1 M2 D2 R T,
+/// the essential and fundamental matrices E F, and the rectification R1 R2 P1 P2 Q.
+pub fn full_yaml(pod: &Pod) -> Result<String, String> {
+    let run = || -> opencv::Result<String> {
+        let m = |k: &nalgebra::Matrix3<f64>| {
+            Mat::from_slice_2d(&[
+                [k[(0, 0)], k[(0, 1)], k[(0, 2)]],
+                [k[(1, 0)], k[(1, 1)], k[(1, 2)]],
+                [k[(2, 0)], k[(2, 1)], k[(2, 2)]],
+            ])
+        };
+        let (m1, m2) = (m(&pod.left.matrix())?, m(&pod.right.matrix())?);
+        let (d1, d2) = (
+            Mat::from_slice(&pod.left.dist)?.try_clone()?,
+            Mat::from_slice(&pod.right.dist)?.try_clone()?,
+        );
+        let t = Mat::from_slice_2d(&[[pod.t.x], [pod.t.y], [pod.t.z]])?;
+        let size = Size::new(pod.left.width as i32, pod.left.height as i32);
+        let (mut r1, mut r2, mut p1, mut p2, mut q) = (
+            Mat::default(),
+            Mat::default(),
+            Mat::default(),
+            Mat::default(),
+            Mat::default(),
+        );
+        let (mut a, mut b) = (core::Rect::default(), core::Rect::default());
+        calib3d::stereo_rectify(
+            &m1,
+            &d1,
+            &m2,
+            &d2,
+            size,
+            &m(&pod.r)?,
+            &t,
+            &mut r1,
+            &mut r2,
+            &mut p1,
+            &mut p2,
+            &mut q,
+            calib3d::CALIB_ZERO_DISPARITY,
+            0.0,
+            size,
+            &mut a,
+            &mut b,
+        )?;
+        // E = [T]x R, F = M2^-T E M1^-1
+        let tx = nalgebra::Matrix3::new(
+            0.0, -pod.t.z, pod.t.y, pod.t.z, 0.0, -pod.t.x, -pod.t.y, pod.t.x, 0.0,
+        );
+        let e = tx * pod.r;
+        let f = pod
+            .right
+            .matrix()
+            .try_inverse()
+            .unwrap_or_default()
+            .transpose()
+            * e
+            * pod.left.matrix().try_inverse().unwrap_or_default();
+        let mut s = pod.opencv_yaml();
+        let block = |name: &str, rows: usize, cols: usize, data: &[f64]| {
+            let d: Vec<String> = data.iter().map(|v| format!("{v:.10e}")).collect();
+            format!(
+                "{name}: !!opencv-matrix\n   rows: {rows}\n   cols: {cols}\n   dt: d\n   data: [ {} ]\n",
+                d.join(", ")
+            )
+        };
+        let rows = |x: &nalgebra::Matrix3<f64>| x.transpose().iter().copied().collect::<Vec<f64>>();
+        s.push_str(&block("E", 3, 3, &rows(&e)));
+        s.push_str(&block("F", 3, 3, &rows(&f)));
+        for (name, mat, r, c) in [
+            ("R1", &r1, 3, 3),
+            ("R2", &r2, 3, 3),
+            ("P1", &p1, 3, 4),
+            ("P2", &p2, 3, 4),
+            ("Q", &q, 4, 4),
+        ] {
+            s.push_str(&block(name, r, c, mat.data_typed::<f64>()?));
+        }
+        Ok(s)
+    };
+    run().map_err(|e| format!("OpenCV: {e}"))
+}
