@@ -41,6 +41,7 @@ demo: deps
 bench: deps
 	$(CARGO) bench --locked --bench conform
 	$(CARGO) bench --locked --bench model
+	$(CARGO) bench --locked --bench stereo
 
 clean:
 	$(CARGO) clean
