@@ -190,47 +190,8 @@ pub fn calibrate(
 /// the essential and fundamental matrices E F, and the rectification R1 R2 P1 P2 Q.
 pub fn full_yaml(pod: &Pod) -> Result<String, String> {
     let run = || -> opencv::Result<String> {
-        let m = |k: &nalgebra::Matrix3<f64>| {
-            Mat::from_slice_2d(&[
-                [k[(0, 0)], k[(0, 1)], k[(0, 2)]],
-                [k[(1, 0)], k[(1, 1)], k[(1, 2)]],
-                [k[(2, 0)], k[(2, 1)], k[(2, 2)]],
-            ])
-        };
-        let (m1, m2) = (m(&pod.left.matrix())?, m(&pod.right.matrix())?);
-        let (d1, d2) = (
-            Mat::from_slice(&pod.left.dist)?.try_clone()?,
-            Mat::from_slice(&pod.right.dist)?.try_clone()?,
-        );
-        let t = Mat::from_slice_2d(&[[pod.t.x], [pod.t.y], [pod.t.z]])?;
-        let size = Size::new(pod.left.width as i32, pod.left.height as i32);
-        let (mut r1, mut r2, mut p1, mut p2, mut q) = (
-            Mat::default(),
-            Mat::default(),
-            Mat::default(),
-            Mat::default(),
-            Mat::default(),
-        );
-        let (mut a, mut b) = (core::Rect::default(), core::Rect::default());
-        calib3d::stereo_rectify(
-            &m1,
-            &d1,
-            &m2,
-            &d2,
-            size,
-            &m(&pod.r)?,
-            &t,
-            &mut r1,
-            &mut r2,
-            &mut p1,
-            &mut p2,
-            &mut q,
-            calib3d::CALIB_ZERO_DISPARITY,
-            0.0,
-            size,
-            &mut a,
-            &mut b,
-        )?;
+        let rect = super::reconstruct::rectification(pod)?;
+        let (r1, r2, p1, p2, q) = (rect.r1, rect.r2, rect.p1, rect.p2, rect.q);
         // E = [T]x R, F = M2^-T E M1^-1
         let tx = nalgebra::Matrix3::new(
             0.0, -pod.t.z, pod.t.y, pod.t.z, 0.0, -pod.t.x, -pod.t.y, pod.t.x, 0.0,

@@ -74,6 +74,73 @@ fn mat3(m: &nalgebra::Matrix3<f64>) -> opencv::Result<Mat> {
     ])
 }
 
+/// A pod's calibration as OpenCV matrices, and its rectification (R1 R2 P1 P2 Q).
+pub struct Rectification {
+    pub m1: Mat,
+    pub d1: Mat,
+    pub m2: Mat,
+    pub d2: Mat,
+    pub r1: Mat,
+    pub r2: Mat,
+    pub p1: Mat,
+    pub p2: Mat,
+    pub q: Mat,
+}
+
+/// Rectifies a pod (`stereoRectify`, zero disparity at infinity, no scaling).
+pub fn rectification(pod: &Pod) -> opencv::Result<Rectification> {
+    let size = Size::new(pod.left.width as i32, pod.left.height as i32);
+    let (m1, m2) = (mat3(&pod.left.matrix())?, mat3(&pod.right.matrix())?);
+    let (d1, d2) = (
+        Mat::from_slice(&pod.left.dist)?.try_clone()?,
+        Mat::from_slice(&pod.right.dist)?.try_clone()?,
+    );
+    let t = Mat::from_slice_2d(&[[pod.t.x], [pod.t.y], [pod.t.z]])?;
+    let mut out = Rectification {
+        m1,
+        d1,
+        m2,
+        d2,
+        r1: Mat::default(),
+        r2: Mat::default(),
+        p1: Mat::default(),
+        p2: Mat::default(),
+        q: Mat::default(),
+    };
+    let (mut roi1, mut roi2) = (Rect::default(), Rect::default());
+    let Rectification {
+        m1,
+        d1,
+        m2,
+        d2,
+        r1,
+        r2,
+        p1,
+        p2,
+        q,
+    } = &mut out;
+    calib3d::stereo_rectify(
+        m1,
+        d1,
+        m2,
+        d2,
+        size,
+        &mat3(&pod.r)?,
+        &t,
+        r1,
+        r2,
+        p1,
+        p2,
+        q,
+        calib3d::CALIB_ZERO_DISPARITY,
+        0.0,
+        size,
+        &mut roi1,
+        &mut roi2,
+    )?;
+    Ok(out)
+}
+
 /// Points (rig frame) and their viewing camera centre, from one pod's image pair.
 pub fn pod_points(
     pod: &Pod,
@@ -85,40 +152,17 @@ pub fn pod_points(
     let (w, h) = (pod.left.width, pod.left.height);
     let size = Size::new(w as i32, h as i32);
     let t0 = Instant::now();
-    let (m1, m2) = (mat3(&pod.left.matrix())?, mat3(&pod.right.matrix())?);
-    let (d1, d2) = (
-        Mat::from_slice(&pod.left.dist)?.try_clone()?,
-        Mat::from_slice(&pod.right.dist)?.try_clone()?,
-    );
-    let r = mat3(&pod.r)?;
-    let t = Mat::from_slice_2d(&[[pod.t.x], [pod.t.y], [pod.t.z]])?;
-    let (mut r1, mut r2, mut p1, mut p2, mut q) = (
-        Mat::default(),
-        Mat::default(),
-        Mat::default(),
-        Mat::default(),
-        Mat::default(),
-    );
-    let (mut roi1, mut roi2) = (Rect::default(), Rect::default());
-    calib3d::stereo_rectify(
-        &m1,
-        &d1,
-        &m2,
-        &d2,
-        size,
-        &r,
-        &t,
-        &mut r1,
-        &mut r2,
-        &mut p1,
-        &mut p2,
-        &mut q,
-        calib3d::CALIB_ZERO_DISPARITY,
-        0.0,
-        size,
-        &mut roi1,
-        &mut roi2,
-    )?;
+    let Rectification {
+        m1,
+        d1,
+        m2,
+        d2,
+        r1,
+        r2,
+        p1,
+        p2,
+        q,
+    } = rectification(pod)?;
     let tc = Instant::now();
     let (lm, rm) = (gray_mat(left, w, h)?, gray_mat(right, w, h)?);
     let own_copies = tc.elapsed().as_secs_f64();
