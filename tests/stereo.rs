@@ -155,3 +155,69 @@ fn disparity_rejects_bad_pairs_clearly() {
     };
     assert!(bad.validate().unwrap_err().contains("multiple of 16"));
 }
+
+#[test]
+fn reconstruct_names_missing_and_mismatched_images() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let mut rig: RigFile = toml::from_str(
+        &std::fs::read_to_string(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/config/rig.example.toml"
+        ))
+        .unwrap(),
+    )
+    .unwrap();
+    for p in &mut rig.pods {
+        p.image = [160, 120];
+        p.focal_px = 140.0;
+    }
+    let rig_path = d.join("rig.toml");
+    std::fs::write(&rig_path, toml::to_string(&rig).unwrap()).unwrap();
+    let box_mesh = conformd::synth::tessellated_box(V3::new(0.6, 0.3, 0.3), 4);
+    conformd::mesh::write_mesh(&d.join("box.ply"), &box_mesh).unwrap();
+    let sets = conformd::jobs::simulate(
+        &rig_path,
+        d.join("box.ply").to_str().unwrap(),
+        "",
+        1,
+        2.0,
+        &d.join("sim"),
+    )
+    .unwrap();
+    // so small a view matches nothing: said plainly, not an empty scan written
+    let e = conformd::jobs::reconstruct(&sets[0], &rig_path, &d.join("s.ply"), None)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("pod pod1") && e.contains("disparity map is empty"),
+        "{e}"
+    );
+    // an image gone
+    std::fs::remove_file(sets[0].join("pod1-right.png")).unwrap();
+    let e = conformd::jobs::reconstruct(&sets[0], &rig_path, &d.join("s.ply"), None)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("pod1-right") && e.contains("pod1-right.png"),
+        "{e}"
+    );
+    // an image of another size than the calibration's
+    image::GrayImage::new(80, 60)
+        .save(sets[0].join("pod1-right.png"))
+        .unwrap();
+    let e = conformd::jobs::reconstruct(&sets[0], &rig_path, &d.join("s.ply"), None)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("pod1-right") && e.contains("80x60") && e.contains("160x120"),
+        "{e}"
+    );
+    // a rig file without pods
+    std::fs::write(d.join("empty.toml"), "name = \"x\"\npods = []\n").unwrap();
+    let e = conformd::jobs::reconstruct(&sets[0], &d.join("empty.toml"), &d.join("s.ply"), None)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("empty.toml") && e.contains("no [[pods]]"), "{e}");
+    assert!(!d.join("s.ply").exists(), "nothing written on failure");
+}
