@@ -756,6 +756,7 @@ pub fn simulate(
 pub fn reconstruct(
     capture: &Path,
     rig_path: &Path,
+    calibration: Option<&Path>,
     out: &Path,
     report_path: Option<&Path>,
 ) -> Result<crate::stereo::reconstruct::ReconstructReport, JobError> {
@@ -773,6 +774,25 @@ pub fn reconstruct(
     let mut report = ReconstructReport::default();
     let mut points = Vec::new();
     for pod in rig.pods() {
+        // a calibration file, when given, replaces the rig file's lenses and pair geometry
+        let pod = match calibration.map(|d| d.join(format!("{}.yml", pod.id))) {
+            Some(f) if f.exists() => crate::stereo::calibrate::read_yaml(
+                &f,
+                &pod.id,
+                pod.left_pose,
+                pod.left.width,
+                pod.left.height,
+            )
+            .map_err(JobError::Usage)?,
+            Some(f) => {
+                return Err(JobError::Usage(format!(
+                    "{}: no calibration for pod {}",
+                    f.display(),
+                    pod.id
+                )));
+            }
+            None => pod,
+        };
         let image = |side: &str| -> Result<Vec<u8>, JobError> {
             let cam = manifest
                 .cameras

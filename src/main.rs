@@ -145,6 +145,9 @@ enum Cmd {
         capture: PathBuf,
         #[arg(long)]
         rig: PathBuf,
+        /// folder of pod calibrations (`<pod>.yml`, OpenCV YAML) replacing the rig file's
+        #[arg(long)]
+        calibration: Option<PathBuf>,
         #[arg(long)]
         out: PathBuf,
         #[arg(long)]
@@ -458,10 +461,17 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
         Cmd::Reconstruct {
             capture,
             rig,
+            calibration,
             out,
             report,
         } => {
-            let r = jobs::reconstruct(&capture, &rig, &out, report.as_deref())?;
+            let r = jobs::reconstruct(
+                &capture,
+                &rig,
+                calibration.as_deref(),
+                &out,
+                report.as_deref(),
+            )?;
             for p in &r.pods {
                 println!(
                     "pod {}: {} points, {:.0}% valid disparity (rectify {:.2} s, disparity {:.2} s, reproject {:.2} s)",

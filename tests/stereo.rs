@@ -18,8 +18,14 @@ fn simulate_reconstruct_conform() {
     let rig_path = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/rig.example.toml");
     let sets = conformd::jobs::simulate(&rig_path, "pig", "swing=8,nod=-6", 1, 2.0, &d.join("sim"))
         .unwrap();
-    let report =
-        conformd::jobs::reconstruct(&sets[0], &rig_path, &d.join("scan.ply"), None).unwrap();
+    let report = conformd::jobs::reconstruct(
+        &sets[0],
+        &rig_path,
+        Some(&d.join("sim/calibration")),
+        &d.join("scan.ply"),
+        None,
+    )
+    .unwrap(); // the calibration files simulate wrote, read back through OpenCV
     let scan = read_mesh(&d.join("scan.ply")).unwrap();
     let truth = read_mesh(&sets[0].join("truth.ply")).unwrap();
     let diag = truth.diagonal();
@@ -186,7 +192,7 @@ fn reconstruct_names_missing_and_mismatched_images() {
     )
     .unwrap();
     // so small a view matches nothing: said plainly, not an empty scan written
-    let e = conformd::jobs::reconstruct(&sets[0], &rig_path, &d.join("s.ply"), None)
+    let e = conformd::jobs::reconstruct(&sets[0], &rig_path, None, &d.join("s.ply"), None)
         .unwrap_err()
         .to_string();
     assert!(
@@ -195,7 +201,7 @@ fn reconstruct_names_missing_and_mismatched_images() {
     );
     // an image gone
     std::fs::remove_file(sets[0].join("pod1-right.png")).unwrap();
-    let e = conformd::jobs::reconstruct(&sets[0], &rig_path, &d.join("s.ply"), None)
+    let e = conformd::jobs::reconstruct(&sets[0], &rig_path, None, &d.join("s.ply"), None)
         .unwrap_err()
         .to_string();
     assert!(
@@ -206,18 +212,50 @@ fn reconstruct_names_missing_and_mismatched_images() {
     image::GrayImage::new(80, 60)
         .save(sets[0].join("pod1-right.png"))
         .unwrap();
-    let e = conformd::jobs::reconstruct(&sets[0], &rig_path, &d.join("s.ply"), None)
+    let e = conformd::jobs::reconstruct(&sets[0], &rig_path, None, &d.join("s.ply"), None)
         .unwrap_err()
         .to_string();
     assert!(
         e.contains("pod1-right") && e.contains("80x60") && e.contains("160x120"),
         "{e}"
     );
+    // a calibration folder without this pod's file, and a garbled file
+    std::fs::create_dir_all(d.join("cal")).unwrap();
+    let e = conformd::jobs::reconstruct(
+        &sets[0],
+        &rig_path,
+        Some(&d.join("cal")),
+        &d.join("s.ply"),
+        None,
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.contains("pod1.yml") && e.contains("no calibration for pod pod1"),
+        "{e}"
+    );
+    std::fs::write(d.join("cal/pod1.yml"), "%YAML:1.0\n---\nM1: 3\n").unwrap();
+    let e = conformd::jobs::reconstruct(
+        &sets[0],
+        &rig_path,
+        Some(&d.join("cal")),
+        &d.join("s.ply"),
+        None,
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("pod1.yml"), "{e}");
     // a rig file without pods
     std::fs::write(d.join("empty.toml"), "name = \"x\"\npods = []\n").unwrap();
-    let e = conformd::jobs::reconstruct(&sets[0], &d.join("empty.toml"), &d.join("s.ply"), None)
-        .unwrap_err()
-        .to_string();
+    let e = conformd::jobs::reconstruct(
+        &sets[0],
+        &d.join("empty.toml"),
+        None,
+        &d.join("s.ply"),
+        None,
+    )
+    .unwrap_err()
+    .to_string();
     assert!(e.contains("empty.toml") && e.contains("no [[pods]]"), "{e}");
     assert!(!d.join("s.ply").exists(), "nothing written on failure");
 }

@@ -229,3 +229,54 @@ pub fn full_yaml(pod: &Pod) -> Result<String, String> {
     };
     run().map_err(|e| format!("OpenCV: {e}"))
 }
+
+/// Reads a pod's calibration (M1 D1 M2 D2 R T, as written by `calibrate` or `simulate`)
+/// through OpenCV's FileStorage; the pose in the rig frame is the caller's.
+pub fn read_yaml(
+    path: &std::path::Path,
+    id: &str,
+    left_pose: Pose,
+    width: u32,
+    height: u32,
+) -> Result<Pod, String> {
+    let name = path.display().to_string();
+    let run = || -> opencv::Result<Result<Pod, String>> {
+        let fs = core::FileStorage::new(&name, core::FileStorage_Mode::READ as i32, "")?;
+        if !fs.is_opened()? {
+            return Ok(Err(format!(
+                "{name}: cannot be opened as an OpenCV calibration file"
+            )));
+        }
+        let mut mats = Vec::new();
+        for key in ["M1", "D1", "M2", "D2", "R", "T"] {
+            let m = fs.get(key)?.mat()?;
+            if m.empty() {
+                return Ok(Err(format!("{name}: no {key} matrix")));
+            }
+            let mut f = Mat::default();
+            m.convert_to(&mut f, core::CV_64F, 1.0, 0.0)?;
+            mats.push(f);
+        }
+        let sizes = [(3, 3), (1, 5), (3, 3), (1, 5), (3, 3), (3, 1)];
+        for (k, (m, (r, c))) in mats.iter().zip(sizes).enumerate() {
+            if m.total() != r * c {
+                return Ok(Err(format!(
+                    "{name}: {} has {} values, expected {}",
+                    ["M1", "D1", "M2", "D2", "R", "T"][k],
+                    m.total(),
+                    r * c
+                )));
+            }
+        }
+        let t = mats[5].data_typed::<f64>()?;
+        Ok(Ok(Pod {
+            id: id.into(),
+            left: to_intrinsics(&mats[0], &mats[1], width, height)?,
+            right: to_intrinsics(&mats[2], &mats[3], width, height)?,
+            left_pose,
+            r: nalgebra::Matrix3::from_row_slice(mats[4].data_typed::<f64>()?),
+            t: V3::new(t[0], t[1], t[2]),
+        }))
+    };
+    run().map_err(|e| format!("{name}: OpenCV: {e}"))?
+}
