@@ -5,7 +5,7 @@
 use conformd::conform::correspond::ScanSurface;
 use conformd::conform::{ConformOptions, conform};
 use conformd::mesh::landmarks::{Landmark, LandmarkPos};
-use conformd::mesh::{Mesh, V3, read_mesh};
+use conformd::mesh::{V3, read_mesh};
 use conformd::synth::rig::RigFile;
 use conformd::synth::{scanner, templates};
 use std::path::Path;
@@ -132,7 +132,6 @@ fn simulate_reconstruct_conform() {
         err * 100.0
     );
     assert!(err < 0.02, "correspondence error {:.3}%", err * 100.0);
-    let _ = Mesh::default();
 }
 
 #[test]

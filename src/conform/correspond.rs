@@ -40,7 +40,6 @@ enum Index {
         boundary_edge: HashSet<[u32; 2]>,
     },
     Cloud {
-        points: Vec<V3>,
         normals: Vec<V3>,
         /// normals estimated here have no reliable sign
         oriented: bool,
@@ -102,11 +101,7 @@ impl ScanSurface {
                 Some(n) if n.iter().all(|v| v.norm() > 0.5) => (n.clone(), true),
                 _ => (estimate_normals(&points, &tree), false),
             };
-            Index::Cloud {
-                points: points.clone(),
-                normals,
-                oriented,
-            }
+            Index::Cloud { normals, oriented }
         } else {
             let verts: Vec<PVec> = points.iter().map(|p| PVec::new(p.x, p.y, p.z)).collect();
             let tri = TriMesh::new(verts, scan.triangles.clone())
@@ -219,11 +214,8 @@ impl ScanSurface {
                 };
                 (p, normal, true)
             }
-            Index::Cloud {
-                points,
-                normals,
-                oriented,
-            } => {
+            Index::Cloud { normals, oriented } => {
+                let points = &self.points;
                 // bounded and unsorted: far vertices cost little, and only the nearest
                 // of the few neighbours needs finding
                 let r2 = lim.max_distance * lim.max_distance;

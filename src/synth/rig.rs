@@ -363,7 +363,6 @@ pub fn chessboard_poses(
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let centre = pod.left_pose.centre();
     let dist = (V3::from(spec.look_at) - centre).norm();
-    let cam_to_rig = pod.left_pose.r.transpose();
     let (bw, bh) = (
         (cb.cols + 1) as f64 * cb.square,
         (cb.rows + 1) as f64 * cb.square,
@@ -387,7 +386,6 @@ pub fn chessboard_poses(
             // rig -> board: x_board = R_cam^T (R x_rig + t - origin)
             let r = r_cam.transpose() * pod.left_pose.r;
             let t = r_cam.transpose() * (pod.left_pose.t - origin_cam);
-            let _ = cam_to_rig;
             Pose { r, t }
         })
         .collect()
