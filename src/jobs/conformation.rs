@@ -1,0 +1,331 @@
+//! Conformation jobs: options from config files, the template source, conforming files on
+//! disk, the demo, and describing a mesh.
+
+use super::*;
+use crate::conform::{self, ConformOptions, ConformReport, IterationReport, Method};
+use crate::mesh::{Mesh, quality, topology};
+use crate::synth::cases;
+use std::path::{Path, PathBuf};
+
+/// Reads conformation options from a TOML file: either a whole `conform.toml`, or a
+/// station config whose `[conform]` table holds them. Unknown keys are errors.
+pub fn load_conform_options(path: &Path) -> Result<ConformOptions, JobError> {
+    let name = path.display().to_string();
+    let table = read_toml(path)?;
+    // a station config holds sections; a conform.toml holds the options themselves
+    const STATION_SECTIONS: [&str; 8] = [
+        "template", "station", "rig", "capture", "trigger", "cameras", "daemon", "model",
+    ];
+    let table = match table.get("conform") {
+        Some(toml::Value::Table(t)) => t.clone(),
+        _ if STATION_SECTIONS.iter().any(|k| table.contains_key(*k)) => toml::Table::new(),
+        _ => table,
+    };
+    let opts: ConformOptions = table
+        .try_into()
+        .map_err(|e: toml::de::Error| JobError::Config {
+            path: name.clone(),
+            msg: e.to_string(),
+        })?;
+    opts.validate().map_err(|e| JobError::Config {
+        path: name,
+        msg: e.to_string(),
+    })?;
+    Ok(opts)
+}
+
+/// Where a station's template comes from: a generic one (`pig`, `body`) built at a
+/// resolution, or any user mesh with its landmark file and optional groups file (the
+/// paper: "one of the 3D shape samples can serve as a generic mesh directly").
+/// In a config: `[template]` with `generic = "pig"` and `vertices = 10000`, or
+/// `mesh = "..."`, `landmarks = "..."`, `groups = "..."`.
+#[derive(Debug, Clone, Default, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct TemplateSource {
+    pub generic: Option<crate::synth::templates::Kind>,
+    pub vertices: Option<usize>,
+    pub mesh: Option<PathBuf>,
+    pub landmarks: Option<PathBuf>,
+    pub groups: Option<PathBuf>,
+}
+
+impl TemplateSource {
+    /// Reads the `[template]` table of a config file; relative paths are taken from the
+    /// config file's folder.
+    pub fn from_config(path: &Path) -> Result<Option<TemplateSource>, JobError> {
+        let name = path.display().to_string();
+        let table = read_toml(path)?;
+        let Some(t) = table.get("template") else {
+            return Ok(None);
+        };
+        let mut src: TemplateSource =
+            t.clone()
+                .try_into()
+                .map_err(|e: toml::de::Error| JobError::Config {
+                    path: name.clone(),
+                    msg: format!("[template]: {e}"),
+                })?;
+        let base = path.parent().unwrap_or(Path::new("."));
+        for p in [&mut src.mesh, &mut src.landmarks, &mut src.groups]
+            .into_iter()
+            .flatten()
+        {
+            if p.is_relative() {
+                *p = base.join(&*p);
+            }
+        }
+        Ok(Some(src))
+    }
+
+    /// The template mesh (with groups) and its landmarks, if it has any.
+    pub fn load(&self) -> Result<(Mesh, Option<Vec<mesh::Landmark>>), JobError> {
+        match (&self.generic, &self.mesh) {
+            (Some(kind), None) => {
+                let fig = crate::synth::templates::build(*kind, self.vertices.unwrap_or(10_000));
+                let lms = fig.landmarks();
+                Ok((fig.mesh, Some(lms)))
+            }
+            (None, Some(path)) => {
+                let mut m = mesh::read_mesh(path)?;
+                if let Some(g) = &self.groups {
+                    mesh::groups::read_into(g, &mut m)?;
+                }
+                let lms = self.landmarks.as_ref().map(|p| mesh::read_landmarks(p)).transpose()?;
+                Ok((m, lms))
+            }
+            _ => Err(JobError::Usage("[template] needs either generic = \"pig\" or \"body\", or mesh = \"FILE\" (not both)".into())),
+        }
+    }
+}
+
+/// The files of one conformation.
+#[derive(Debug, Clone)]
+pub struct ConformFiles {
+    pub template: TemplateSource,
+    pub scan: PathBuf,
+    pub template_landmarks: Option<PathBuf>,
+    pub scan_landmarks: Option<PathBuf>,
+    pub out: PathBuf,
+    pub report: Option<PathBuf>,
+}
+
+/// Reads the template, scan and landmarks, conforms, writes the result (`.ply` or
+/// `.obj`) and the JSON report, each atomically. Landmarks are used only when both files
+/// are given; one without the other is an error.
+///
+/// Example: `conformd conform --template t.obj --scan s.ply --out c.ply --report r.json`;
+/// see `tests/cli.rs`.
+pub fn conform_files(
+    files: &ConformFiles,
+    opts: &ConformOptions,
+    progress: &mut dyn FnMut(&IterationReport),
+) -> Result<ConformReport, JobError> {
+    let ext = files
+        .out
+        .extension()
+        .and_then(|e| e.to_str())
+        .unwrap_or("")
+        .to_ascii_lowercase();
+    if ext != "ply" && ext != "obj" {
+        return Err(JobError::Usage(format!(
+            "{}: the output must be a .ply or .obj file",
+            files.out.display()
+        )));
+    }
+    let (template, own_landmarks) = files.template.load()?;
+    let scan = mesh::read_mesh(&files.scan)?;
+    let template_landmarks = match &files.template_landmarks {
+        Some(t) => Some(mesh::read_landmarks(t)?),
+        None => own_landmarks,
+    };
+    let landmarks = match (template_landmarks, &files.scan_landmarks) {
+        (Some(t), Some(s)) => Some((t, mesh::read_landmarks(s)?)),
+        (_, None) => None,
+        (None, Some(_)) => {
+            return Err(JobError::Usage(
+                "--scan-landmarks needs template landmarks too (--template-landmarks, or the template's own)".into(),
+            ));
+        }
+    };
+    let lm = landmarks.as_ref().map(|(t, s)| (&t[..], &s[..]));
+    let result = conform::conform(&template, &scan, lm, opts, progress)?;
+    mesh::write_mesh(&files.out, &result.mesh)?;
+    if let Some(r) = &files.report {
+        write_report(r, &result.report)?;
+    }
+    Ok(result.report)
+}
+
+/// What the demo wrote and measured.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct DemoSummary {
+    pub files: Vec<PathBuf>,
+    /// per method: mean and 90th percentile distance of the missing region's vertices to
+    /// the true box surface, relative to the box diagonal; largest anywhere; watertight
+    pub methods: Vec<DemoFigures>,
+}
+
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct DemoFigures {
+    pub method: Method,
+    pub iterations: usize,
+    pub seconds: f64,
+    pub missing_vertices: usize,
+    pub missing_mean: f64,
+    pub missing_p90: f64,
+    pub max_anywhere: f64,
+    pub watertight: bool,
+    pub folded_triangles: usize,
+}
+
+/// The paper's sphere-to-box case with missing data (Ju et al. 2004, section 3.2), with
+/// both methods: writes the template, the scan with its holes, landmarks, each conformed
+/// mesh and report into `out_dir`.
+pub fn demo(
+    out_dir: &Path,
+    progress: &mut dyn FnMut(Method, &IterationReport),
+) -> Result<DemoSummary, JobError> {
+    std::fs::create_dir_all(out_dir).map_err(|source| JobError::Io {
+        path: out_dir.display().to_string(),
+        source,
+    })?;
+    let case = cases::sphere_to_box_with_missing(4);
+    let mut files = Vec::new();
+    let mut put = |name: &str, bytes: &[u8]| -> Result<(), JobError> {
+        let p = out_dir.join(name);
+        write_atomic(&p, bytes)?;
+        files.push(p);
+        Ok(())
+    };
+    put(
+        "template.ply",
+        &mesh::io::ply_bytes(&case.template, mesh::io::PlyEncoding::BinaryLittleEndian),
+    )?;
+    put(
+        "scan.ply",
+        &mesh::io::ply_bytes(&case.scan, mesh::io::PlyEncoding::BinaryLittleEndian),
+    )?;
+    put(
+        "template.landmarks",
+        mesh::landmarks::landmarks_text(&case.template_landmarks).as_bytes(),
+    )?;
+    put(
+        "scan.landmarks",
+        mesh::landmarks::landmarks_text(&case.scan_landmarks).as_bytes(),
+    )?;
+    let mut methods = Vec::new();
+    for (method, opts) in [
+        (Method::Paper, ConformOptions::paper()),
+        (Method::Default, ConformOptions::default()),
+    ] {
+        let lm = Some((&case.template_landmarks[..], &case.scan_landmarks[..]));
+        let r = conform::conform(&case.template, &case.scan, lm, &opts, &mut |it| {
+            progress(method, it)
+        })?;
+        let name = format!("{:?}", method).to_lowercase();
+        put(
+            &format!("conformed-{name}.ply"),
+            &mesh::io::ply_bytes(&r.mesh, mesh::io::PlyEncoding::BinaryLittleEndian),
+        )?;
+        put(
+            &format!("report-{name}.json"),
+            serde_json::to_string_pretty(&r.report)
+                .expect("serialises")
+                .as_bytes(),
+        )?;
+        // a picture of the result, coloured by its distance to the true (whole) box
+        let size = crate::mesh::V3::from(cases::BOX_SIZE);
+        let values: Vec<f64> = r
+            .mesh
+            .vertices
+            .iter()
+            .map(|p| crate::synth::distance_to_box_surface(p, &size))
+            .collect();
+        let max = values.iter().cloned().fold(0.0, f64::max);
+        let views = vec![
+            crate::render::View {
+                azimuth: 30.0,
+                elevation: 30.0,
+            },
+            crate::render::View {
+                azimuth: 150.0,
+                elevation: -20.0,
+            },
+        ];
+        let img = crate::render::render(
+            &r.mesh,
+            &crate::render::Colouring::Values {
+                values,
+                min: 0.0,
+                max,
+                unit: "TO BOX".into(),
+            },
+            &crate::render::RenderOptions {
+                views,
+                ..Default::default()
+            },
+        );
+        let mut png = Vec::new();
+        img.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
+            .expect("encoding a PNG in memory");
+        put(&format!("preview-{name}.png"), &png)?;
+        let f = cases::box_figures(&r.mesh);
+        methods.push(DemoFigures {
+            method,
+            iterations: r.report.iterations.len(),
+            seconds: r.report.seconds.total,
+            missing_vertices: f.missing_vertices,
+            missing_mean: f.missing_mean,
+            missing_p90: f.missing_p90,
+            max_anywhere: f.max_anywhere,
+            watertight: r.report.watertight_result,
+            folded_triangles: r.report.folded_triangles,
+        });
+    }
+    Ok(DemoSummary { files, methods })
+}
+
+/// A mesh's topology and, against an optional original of the same topology, the paper's
+/// variation figures.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct MeshInfo {
+    pub topology: topology::TopologyReport,
+    pub bounding_box: Option<[[f64; 3]; 2]>,
+    pub diagonal: f64,
+    pub area: f64,
+    pub has_normals: bool,
+    pub groups: Vec<(String, usize)>,
+    pub folded_triangles: usize,
+    pub variation: Option<quality::Variation>,
+}
+
+/// Describes a mesh file (and compares it with `original` when given).
+pub fn info(path: &Path, original: Option<&Path>) -> Result<MeshInfo, JobError> {
+    let m: Mesh = mesh::read_mesh(path)?;
+    let variation = match original {
+        Some(o) => {
+            let o = mesh::read_mesh(o)?;
+            if o.vertices.len() != m.vertices.len() || o.triangles != m.triangles {
+                return Err(JobError::Usage(format!(
+                    "{} and {} do not share a topology, so their variations cannot be compared",
+                    path.display(),
+                    original.unwrap().display()
+                )));
+            }
+            Some(quality::variation(&o.vertices, &m.vertices, &m.triangles))
+        }
+        None => None,
+    };
+    Ok(MeshInfo {
+        topology: topology::report(&m),
+        bounding_box: m
+            .bounding_box()
+            .map(|(a, b)| [[a.x, a.y, a.z], [b.x, b.y, b.z]]),
+        diagonal: m.diagonal(),
+        area: m.area(),
+        has_normals: m.normals.is_some(),
+        groups: m.groups.iter().map(|(k, v)| (k.clone(), v.len())).collect(),
+        folded_triangles: quality::folded_triangles(&m),
+        variation,
+    })
+}

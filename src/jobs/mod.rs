@@ -1,0 +1,73 @@
+//! What a user can do from the CLI, as library calls, one file per stage: conformation
+//! (`conformation`), templates, previews and shape models (`shapes`), rig captures (`rig`),
+//! simulation, calibration and reconstruction (`stereo`). The CLI, the tests and the
+//! daemon call exactly these.
+
+mod conformation;
+mod rig;
+mod shapes;
+mod stereo;
+
+pub use conformation::*;
+pub use rig::*;
+pub use shapes::*;
+pub use stereo::*;
+
+use crate::mesh;
+use crate::mesh::io::write_atomic;
+use std::path::Path;
+
+#[derive(Debug, thiserror::Error)]
+pub enum JobError {
+    #[error(transparent)]
+    Groups(#[from] mesh::groups::GroupsError),
+    #[error(transparent)]
+    Mesh(#[from] mesh::MeshError),
+    #[error(transparent)]
+    Landmarks(#[from] mesh::LandmarkError),
+    #[error("{path}: {msg}")]
+    Config { path: String, msg: String },
+    #[error("{0}")]
+    Conform(#[from] crate::conform::ConformError),
+    #[error("{0}")]
+    Usage(String),
+    #[error("{path}: {source}")]
+    Io {
+        path: String,
+        source: std::io::Error,
+    },
+}
+
+/// Reads a TOML file into a table; errors name the file.
+fn read_toml(path: &Path) -> Result<toml::Table, JobError> {
+    let name = path.display().to_string();
+    let text = std::fs::read_to_string(path).map_err(|source| JobError::Io {
+        path: name.clone(),
+        source,
+    })?;
+    toml::from_str(&text).map_err(|e| JobError::Config {
+        path: name,
+        msg: e.to_string(),
+    })
+}
+
+fn write_report<T: serde::Serialize>(path: &Path, report: &T) -> Result<(), JobError> {
+    let json = serde_json::to_string_pretty(report).expect("reports serialise");
+    write_atomic(path, json.as_bytes())?;
+    Ok(())
+}
+
+/// Parses `9x6` (inner corners).
+pub fn parse_board(s: &str) -> Result<(u32, u32), JobError> {
+    let bad = || {
+        JobError::Usage(format!(
+            "board '{s}': expected COLSxROWS inner corners, e.g. 9x6"
+        ))
+    };
+    let (a, b) = s.split_once(['x', 'X']).ok_or_else(bad)?;
+    let (c, r): (u32, u32) = (a.parse().map_err(|_| bad())?, b.parse().map_err(|_| bad())?);
+    if c < 3 || r < 3 {
+        return Err(bad());
+    }
+    Ok((c, r))
+}

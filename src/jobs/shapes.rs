@@ -1,0 +1,265 @@
+//! Template, preview and shape-model jobs.
+
+use super::*;
+use crate::conform;
+use crate::mesh::topology;
+use std::path::{Path, PathBuf};
+
+/// What `template` wrote.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct TemplateSummary {
+    pub mesh: PathBuf,
+    pub landmarks: PathBuf,
+    pub vertices: usize,
+    pub triangles: usize,
+    pub groups: Vec<(String, usize)>,
+    pub landmark_count: usize,
+    pub watertight: bool,
+}
+
+/// Writes a generic pig or body template of about `vertices` vertices, optionally posed
+/// (`swing=12,nod=-8`) and reshaped (`length=1.1`), and its landmark file beside it
+/// (`<out without extension>.landmarks`). The vertex order does not depend on pose or
+/// shape, so subjects made this way are their own ground truth.
+pub fn template(
+    kind: crate::synth::templates::Kind,
+    vertices: usize,
+    pose: &str,
+    shape: &str,
+    out: &Path,
+) -> Result<TemplateSummary, JobError> {
+    use crate::synth::templates;
+    if !(500..=200_000).contains(&vertices) {
+        return Err(JobError::Usage(format!(
+            "--vertices must be 500 to 200000, got {vertices}"
+        )));
+    }
+    let pose_names: Vec<&str> = templates::pose_parameters(kind)
+        .iter()
+        .map(|p| p.0)
+        .collect();
+    let pose_params =
+        templates::parse_parameters(pose, &pose_names, "pose").map_err(JobError::Usage)?;
+    let shape_names = templates::shape_parameters(kind);
+    let shape_params =
+        templates::parse_parameters(shape, &shape_names, "shape").map_err(JobError::Usage)?;
+    let fig = templates::build(kind, vertices);
+    let mut mesh = templates::subject(
+        &fig,
+        kind,
+        &shape_params,
+        &templates::pose(kind, &pose_params),
+    )
+    .map_err(JobError::Usage)?;
+    mesh.groups = fig.mesh.groups.clone();
+    mesh::write_mesh(out, &mesh)?;
+    let landmarks = out.with_extension("landmarks");
+    let lms = fig.landmarks();
+    write_atomic(&landmarks, mesh::landmarks::landmarks_text(&lms).as_bytes())?;
+    Ok(TemplateSummary {
+        mesh: out.to_path_buf(),
+        landmarks,
+        vertices: mesh.vertices.len(),
+        triangles: mesh.triangles.len(),
+        groups: mesh
+            .groups
+            .iter()
+            .map(|(k, v)| (k.clone(), v.len()))
+            .collect(),
+        landmark_count: lms.len(),
+        watertight: topology::report(&mesh).watertight,
+    })
+}
+
+/// How a preview is coloured.
+#[derive(Debug, Clone)]
+pub enum ColourBy {
+    None,
+    Group,
+    /// distance of each vertex to this scan
+    DistanceTo(PathBuf),
+}
+
+impl std::str::FromStr for ColourBy {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "none" => Ok(ColourBy::None),
+            "group" => Ok(ColourBy::Group),
+            _ => match s.strip_prefix("distance-to=") {
+                Some(p) if !p.is_empty() => Ok(ColourBy::DistanceTo(PathBuf::from(p))),
+                _ => Err(format!("'{s}': expected none, group or distance-to=SCAN")),
+            },
+        }
+    }
+}
+
+/// Renders a mesh to a PNG preview from the named views (`front`, `back`, `left`,
+/// `right`/`side`, `top`, `three-quarter`).
+pub fn render(
+    mesh_path: &Path,
+    colour: &ColourBy,
+    views: &[String],
+    width: u32,
+    height: u32,
+    out: &Path,
+) -> Result<(), JobError> {
+    use crate::render::{self, Colouring, RenderOptions, View};
+    if !(64..=8192).contains(&width) || !(64..=8192).contains(&height) {
+        return Err(JobError::Usage(format!(
+            "image size {width}x{height}: each side must be 64 to 8192 pixels"
+        )));
+    }
+    let m = mesh::read_mesh(mesh_path)?;
+    if m.triangles.is_empty() {
+        return Err(JobError::Usage(format!(
+            "{}: a point cloud has no surface to render",
+            mesh_path.display()
+        )));
+    }
+    let views = views
+        .iter()
+        .map(|v| {
+            View::named(v).ok_or_else(|| {
+                JobError::Usage(format!(
+                    "unknown view '{v}' (front, back, left, right, side, top, three-quarter)"
+                ))
+            })
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    let colouring = match colour {
+        ColourBy::None => Colouring::Plain,
+        ColourBy::Group => Colouring::Groups,
+        ColourBy::DistanceTo(scan) => {
+            let s = mesh::read_mesh(scan)?;
+            let surface = conform::correspond::ScanSurface::new(&s)
+                .map_err(|e| JobError::Usage(format!("{}: {e}", scan.display())))?;
+            let values: Vec<f64> = m.vertices.iter().map(|p| surface.distance(p)).collect();
+            let max = values.iter().cloned().fold(0.0, f64::max);
+            Colouring::Values {
+                values,
+                min: 0.0,
+                max,
+                unit: "DISTANCE".into(),
+            }
+        }
+    };
+    let img = render::render(
+        &m,
+        &colouring,
+        &RenderOptions {
+            width,
+            height,
+            views,
+            ..Default::default()
+        },
+    );
+    render::save_png(&img, out)?;
+    Ok(())
+}
+
+/// Builds a shape model from conformed meshes and writes it; with `quality` the model
+/// quality figures for up to 10 modes are computed too (leave-one-out: one model build
+/// per sample).
+pub fn model_build(
+    paths: &[PathBuf],
+    opts: &crate::model::BuildOptions,
+    out: &Path,
+    quality: bool,
+) -> Result<(crate::model::ShapeModel, Option<crate::model::Quality>), JobError> {
+    let samples = paths
+        .iter()
+        .map(|p| Ok((p.display().to_string(), mesh::read_mesh(p)?)))
+        .collect::<Result<Vec<_>, JobError>>()?;
+    let model = crate::model::ShapeModel::build(&samples, opts)
+        .map_err(|e| JobError::Usage(e.to_string()))?;
+    model.save(out)?;
+    let q = if quality {
+        Some(
+            crate::model::quality(&samples, opts, 10, 1)
+                .map_err(|e| JobError::Usage(e.to_string()))?,
+        )
+    } else {
+        None
+    };
+    Ok((model, q))
+}
+
+/// Writes the mean and mean +/- `sigma` standard deviations along each of the first
+/// `modes` modes as meshes, and a PNG sheet of them (rows: modes; columns: -, mean, +).
+pub fn model_modes(
+    model_path: &Path,
+    modes: usize,
+    sigma: f64,
+    view: &str,
+    out_dir: &Path,
+) -> Result<Vec<PathBuf>, JobError> {
+    use crate::render::{self, Colouring, RenderOptions, View};
+    let model =
+        crate::model::ShapeModel::load(model_path).map_err(|e| JobError::Usage(e.to_string()))?;
+    std::fs::create_dir_all(out_dir).map_err(|source| JobError::Io {
+        path: out_dir.display().to_string(),
+        source,
+    })?;
+    let view =
+        View::named(view).ok_or_else(|| JobError::Usage(format!("unknown view '{view}'")))?;
+    let k = modes.min(model.modes.len());
+    let mut files = Vec::new();
+    let mean = model.instance_mesh(&[]);
+    let p = out_dir.join("mean.ply");
+    mesh::write_mesh(&p, &mean)?;
+    files.push(p);
+    let opts = RenderOptions {
+        width: 360,
+        height: 270,
+        views: vec![view],
+        ..Default::default()
+    };
+    let mut cells = Vec::new();
+    for m in 0..k {
+        let sd = model.variances[m].sqrt();
+        for (col, f) in [-sigma, 0.0, sigma].iter().enumerate() {
+            let mut b = vec![0.0; m + 1];
+            b[m] = f * sd;
+            let inst = model.instance_mesh(&b);
+            if col != 1 {
+                let p = out_dir.join(format!(
+                    "mode{}_{}{}sd.ply",
+                    m + 1,
+                    if *f < 0.0 { "minus" } else { "plus" },
+                    sigma
+                ));
+                mesh::write_mesh(&p, &inst)?;
+                files.push(p);
+            }
+            let label = match col {
+                0 => format!("MODE {} -{}SD", m + 1, sigma),
+                1 => format!("MEAN  MODE {}: {:.1}%", m + 1, model.explained[m] * 100.0),
+                _ => format!("+{}SD", sigma),
+            };
+            cells.push((render::render(&inst, &Colouring::Plain, &opts), label));
+        }
+    }
+    let p = out_dir.join("modes.png");
+    render::save_png(&render::sheet(&cells, 3, [250, 250, 250]), &p)?;
+    files.push(p);
+    Ok(files)
+}
+
+/// Scores conformed meshes against a model.
+pub fn model_score(
+    model_path: &Path,
+    paths: &[PathBuf],
+) -> Result<Vec<crate::model::Score>, JobError> {
+    let model =
+        crate::model::ShapeModel::load(model_path).map_err(|e| JobError::Usage(e.to_string()))?;
+    paths
+        .iter()
+        .map(|p| {
+            let m = mesh::read_mesh(p)?;
+            model
+                .score(&p.display().to_string(), &m)
+                .map_err(|e| JobError::Usage(e.to_string()))
+        })
+        .collect()
+}

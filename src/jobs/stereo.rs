@@ -1,0 +1,379 @@
+//! Stereo jobs: simulated capture sets and chessboard views, calibration, disparity,
+//! reconstruction.
+
+use super::*;
+use std::path::{Path, PathBuf};
+
+/// Renders capture sets of a subject (a mesh file, or a generic `pig`/`body` posed with
+/// `pose`) seen by the rig's cameras, written as standard capture sets under `out`, each
+/// with the ground-truth mesh beside its images (`truth.ply`), and every pod's
+/// calibration as OpenCV YAML under `out/calibration/`.
+pub fn simulate(
+    rig_path: &Path,
+    subject: &str,
+    pose: &str,
+    captures: usize,
+    noise: f64,
+    out: &Path,
+) -> Result<Vec<PathBuf>, JobError> {
+    use crate::rig::capture::{CameraRecord, Manifest, TriggerRecord, utc_stamp};
+    use crate::synth::templates;
+    let rig = crate::synth::rig::RigFile::load(rig_path).map_err(JobError::Usage)?;
+    let mesh = match subject.parse::<templates::Kind>() {
+        Ok(kind) if !Path::new(subject).exists() => {
+            let names: Vec<&str> = templates::pose_parameters(kind)
+                .iter()
+                .map(|p| p.0)
+                .collect();
+            let params =
+                templates::parse_parameters(pose, &names, "pose").map_err(JobError::Usage)?;
+            let fig = templates::build(kind, 20_000);
+            templates::subject(
+                &fig,
+                kind,
+                &std::collections::BTreeMap::new(),
+                &templates::pose(kind, &params),
+            )
+            .map_err(JobError::Usage)?
+        }
+        _ => mesh::read_mesh(Path::new(subject))?,
+    };
+    let io = |p: &Path, source| JobError::Io {
+        path: p.display().to_string(),
+        source,
+    };
+    let calib = out.join("calibration");
+    std::fs::create_dir_all(&calib).map_err(|e| io(&calib, e))?;
+    for pod in rig.pods() {
+        write_atomic(
+            &calib.join(format!("{}.yml", pod.id)),
+            pod.opencv_yaml().as_bytes(),
+        )?;
+    }
+    let mut dirs = Vec::new();
+    for n in 0..captures {
+        let id = format!("{}-sim{n:03}", utc_stamp(std::time::SystemTime::now()));
+        let partial = out.join(format!(".{id}.partial"));
+        std::fs::create_dir_all(&partial).map_err(|e| io(&partial, e))?;
+        let mut cameras = Vec::new();
+        for r in crate::synth::rig::render_rig(&rig, &mesh, noise, n as u64) {
+            let file = format!("{}-{}.png", r.pod, r.side);
+            let img = image::GrayImage::from_raw(r.width, r.height, r.pixels).expect("sized");
+            let mut bytes = Vec::new();
+            img.write_to(
+                &mut std::io::Cursor::new(&mut bytes),
+                image::ImageFormat::Png,
+            )
+            .expect("in-memory PNG");
+            write_atomic(&partial.join(&file), &bytes)?;
+            cameras.push(CameraRecord {
+                id: format!("{}-{}", r.pod, r.side),
+                pod: r.pod.clone(),
+                side: r.side.into(),
+                file,
+                width: r.width,
+                height: r.height,
+                sensor_timestamp_us: n as u64 * 1_000_000,
+                sequence: n as u32,
+                exposure_us: None,
+            });
+        }
+        mesh::write_mesh(&partial.join("truth.ply"), &mesh)?;
+        let now = utc_stamp(std::time::SystemTime::now());
+        let manifest = Manifest {
+            format: Manifest::FORMAT.into(),
+            version: 1,
+            id: id.clone(),
+            station: rig.name.clone(),
+            subject: Some(subject.into()),
+            started_utc: now.clone(),
+            finished_utc: now,
+            trigger: TriggerRecord {
+                kind: "simulated".into(),
+                sequence: n as u32,
+                box_time_us: None,
+            },
+            cameras,
+        };
+        write_atomic(
+            &partial.join("manifest.json"),
+            &serde_json::to_vec_pretty(&manifest).expect("serialises"),
+        )?;
+        let dir = out.join(&id);
+        std::fs::rename(&partial, &dir).map_err(|e| io(&dir, e))?;
+        dirs.push(dir);
+    }
+    Ok(dirs)
+}
+
+/// Reconstructs a capture set into a scan in the rig frame: every pod of the rig file
+/// whose two images the set holds (cameras `<pod>-left` / `<pod>-right`, or the
+/// manifest's pod and side) is rectified, matched and reprojected, then all are fused.
+/// Writes the scan (PLY point cloud with normals) and, if asked, a JSON report.
+pub fn reconstruct(
+    capture: &Path,
+    rig_path: &Path,
+    calibration: Option<&Path>,
+    out: &Path,
+    report_path: Option<&Path>,
+) -> Result<crate::stereo::reconstruct::ReconstructReport, JobError> {
+    use crate::stereo::reconstruct::{
+        self as rc, PodReport, ReconstructOptions, ReconstructReport,
+    };
+    let t = std::time::Instant::now();
+    let rig = crate::synth::rig::RigFile::load(rig_path).map_err(JobError::Usage)?;
+    let manifest =
+        crate::rig::capture::Manifest::read(capture).map_err(|e| JobError::Usage(e.to_string()))?;
+    let opts = ReconstructOptions {
+        working_volume: rig.working_volume,
+        ..Default::default()
+    };
+    let mut report = ReconstructReport::default();
+    let mut points = Vec::new();
+    for pod in rig.pods() {
+        // a calibration file, when given, replaces the rig file's lenses and pair geometry
+        let pod = match calibration.map(|d| d.join(format!("{}.yml", pod.id))) {
+            Some(f) if f.exists() => crate::stereo::calibrate::read_yaml(
+                &f,
+                &pod.id,
+                pod.left_pose,
+                pod.left.width,
+                pod.left.height,
+            )
+            .map_err(JobError::Usage)?,
+            Some(f) => {
+                return Err(JobError::Usage(format!(
+                    "{}: no calibration for pod {}",
+                    f.display(),
+                    pod.id
+                )));
+            }
+            None => pod,
+        };
+        let image = |side: &str| -> Result<Vec<u8>, JobError> {
+            let cam = manifest
+                .cameras
+                .iter()
+                .find(|c| c.pod == pod.id && c.side == side)
+                .ok_or_else(|| {
+                    JobError::Usage(format!(
+                        "{}: no {side} image of pod {} in the capture set",
+                        capture.display(),
+                        pod.id
+                    ))
+                })?;
+            let path = capture.join(&cam.file);
+            let img = image::open(&path)
+                .map_err(|e| {
+                    JobError::Usage(format!("camera {}: {}: {e}", cam.id, path.display()))
+                })?
+                .to_luma8();
+            if (img.width(), img.height()) != (pod.left.width, pod.left.height) {
+                return Err(JobError::Usage(format!(
+                    "camera {}: {} is {}x{}, the calibration is for {}x{}",
+                    cam.id,
+                    path.display(),
+                    img.width(),
+                    img.height(),
+                    pod.left.width,
+                    pod.left.height
+                )));
+            }
+            Ok(img.into_raw())
+        };
+        let (l, r) = (image("left")?, image("right")?);
+        let mut pr = PodReport {
+            pod: pod.id.clone(),
+            ..Default::default()
+        };
+        let pts = rc::pod_points(&pod, &l, &r, &opts.sgbm, &mut pr)
+            .map_err(|e| JobError::Usage(format!("pod {}: OpenCV: {e}", pod.id)))?;
+        if pts.is_empty() {
+            return Err(JobError::Usage(format!(
+                "pod {}: the disparity map is empty (no surface matched)",
+                pod.id
+            )));
+        }
+        points.extend(pts);
+        report.pods.push(pr);
+    }
+    let scan = rc::fuse(points, &opts, &mut report);
+    report.seconds_total = t.elapsed().as_secs_f64();
+    mesh::write_mesh(out, &scan)?;
+    if let Some(p) = report_path {
+        write_report(p, &report)?;
+    }
+    Ok(report)
+}
+
+/// Disparity of an already-rectified pair, written as PFM (or 16-bit PNG x16 for .png).
+pub fn disparity(
+    left: &Path,
+    right: &Path,
+    opts: &crate::stereo::disparity::SgbmOptions,
+    out: &Path,
+) -> Result<f64, JobError> {
+    let read = |p: &Path| -> Result<image::GrayImage, JobError> {
+        Ok(image::open(p)
+            .map_err(|e| JobError::Usage(format!("{}: {e}", p.display())))?
+            .to_luma8())
+    };
+    let (l, r) = (read(left)?, read(right)?);
+    if l.dimensions() != r.dimensions() {
+        return Err(JobError::Usage(format!(
+            "{} is {:?} but {} is {:?}: a rectified pair has one size",
+            left.display(),
+            l.dimensions(),
+            right.display(),
+            r.dimensions()
+        )));
+    }
+    let d =
+        crate::stereo::disparity::disparity(l.as_raw(), r.as_raw(), l.width(), l.height(), opts)
+            .map_err(JobError::Usage)?;
+    let bytes = if out
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("png"))
+    {
+        let px: Vec<u16> = d
+            .values
+            .iter()
+            .map(|v| {
+                if v.is_finite() {
+                    (v * 16.0).round().clamp(0.0, 65535.0) as u16
+                } else {
+                    0
+                }
+            })
+            .collect();
+        let img = image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_raw(d.width, d.height, px)
+            .expect("sized");
+        let mut b = Vec::new();
+        img.write_to(&mut std::io::Cursor::new(&mut b), image::ImageFormat::Png)
+            .expect("in-memory PNG");
+        b
+    } else {
+        d.pfm()
+    };
+    write_atomic(out, &bytes)?;
+    Ok(d.valid_share())
+}
+
+/// Renders chessboard calibration views for every pod of the rig: `out/<pod>/leftNN.png`
+/// and `rightNN.png`, and the pod's true calibration beside them (`truth.yml`).
+pub fn simulate_chessboard(
+    rig_path: &Path,
+    board: &str,
+    square: f64,
+    views: usize,
+    out: &Path,
+) -> Result<Vec<PathBuf>, JobError> {
+    use crate::synth::rig::{Chessboard, RigFile, chessboard_poses, render_chessboard};
+    let (cols, rows) = parse_board(board)?;
+    if !(square > 0.0) {
+        return Err(JobError::Usage(format!(
+            "--square must be positive, got {square}"
+        )));
+    }
+    let rig = RigFile::load(rig_path).map_err(JobError::Usage)?;
+    let cb = Chessboard { cols, rows, square };
+    let mut dirs = Vec::new();
+    for (pod, spec) in rig.pods().iter().zip(&rig.pods) {
+        let dir = out.join(&pod.id);
+        std::fs::create_dir_all(&dir).map_err(|source| JobError::Io {
+            path: dir.display().to_string(),
+            source,
+        })?;
+        for (k, b) in chessboard_poses(pod, spec, &cb, views, 7)
+            .iter()
+            .enumerate()
+        {
+            for (right, name) in [(false, "left"), (true, "right")] {
+                let px = render_chessboard(pod, right, &cb, b, 1.0, k as u64);
+                let img =
+                    image::GrayImage::from_raw(pod.left.width, pod.left.height, px).expect("sized");
+                let mut bytes = Vec::new();
+                img.write_to(
+                    &mut std::io::Cursor::new(&mut bytes),
+                    image::ImageFormat::Png,
+                )
+                .expect("in-memory PNG");
+                write_atomic(&dir.join(format!("{name}{k:02}.png")), &bytes)?;
+            }
+        }
+        write_atomic(&dir.join("truth.yml"), pod.opencv_yaml().as_bytes())?;
+        dirs.push(dir);
+    }
+    Ok(dirs)
+}
+
+/// Calibrates one pod from chessboard pairs in `images` (`leftNN.*` with `rightNN.*`, or
+/// folders `left/` and `right/` with matching names) and writes OpenCV YAML.
+pub fn calibrate(
+    images: &Path,
+    board: &str,
+    square: f64,
+    out: &Path,
+) -> Result<crate::stereo::calibrate::CalibrationReport, JobError> {
+    let (cols, rows) = parse_board(board)?;
+    let list = |dir: &Path, prefix: &str| -> Vec<PathBuf> {
+        let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
+            .map(|rd| {
+                rd.filter_map(|e| e.ok())
+                    .map(|e| e.path())
+                    .filter(|p| {
+                        p.file_name()
+                            .is_some_and(|n| n.to_string_lossy().starts_with(prefix))
+                    })
+                    .collect()
+            })
+            .unwrap_or_default();
+        v.sort();
+        v
+    };
+    let (lefts, rights) = if images.join("left").is_dir() {
+        (
+            list(&images.join("left"), ""),
+            list(&images.join("right"), ""),
+        )
+    } else {
+        (list(images, "left"), list(images, "right"))
+    };
+    if lefts.is_empty() || lefts.len() != rights.len() {
+        return Err(JobError::Usage(format!(
+            "{}: found {} left and {} right images; expected pairs leftNN/rightNN (or folders left/ and right/)",
+            images.display(),
+            lefts.len(),
+            rights.len()
+        )));
+    }
+    let mut size = None;
+    let mut pairs = Vec::new();
+    for (l, r) in lefts.iter().zip(&rights) {
+        let read = |p: &Path| -> Result<image::GrayImage, JobError> {
+            Ok(image::open(p)
+                .map_err(|e| JobError::Usage(format!("{}: {e}", p.display())))?
+                .to_luma8())
+        };
+        let (a, b) = (read(l)?, read(r)?);
+        let dims = a.dimensions();
+        if b.dimensions() != dims || size.is_some_and(|s| s != dims) {
+            return Err(JobError::Usage(format!(
+                "{}: its size differs from the other views",
+                r.display()
+            )));
+        }
+        size = Some(dims);
+        pairs.push((a.into_raw(), b.into_raw()));
+    }
+    let (w, h) = size.expect("at least one pair");
+    let id = images
+        .file_name()
+        .map(|n| n.to_string_lossy().to_string())
+        .unwrap_or_else(|| "pod".into());
+    let (pod, report) = crate::stereo::calibrate::calibrate(&pairs, w, h, cols, rows, square, &id)
+        .map_err(JobError::Usage)?;
+    let yaml = crate::stereo::calibrate::full_yaml(&pod).map_err(JobError::Usage)?;
+    write_atomic(out, yaml.as_bytes())?;
+    Ok(report)
+}
