@@ -152,6 +152,10 @@ enum Cmd {
         out: PathBuf,
         #[arg(long)]
         report: Option<PathBuf>,
+        /// triangulate each pod's depth grid (cut at depth jumps) into a mesh with holes
+        /// instead of fusing a point cloud
+        #[arg(long)]
+        mesh: bool,
     },
     /// Disparity of an already-rectified pair (PFM, or 16-bit PNG x16 for .png).
     Disparity {
@@ -464,6 +468,7 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
             calibration,
             out,
             report,
+            mesh,
         } => {
             let r = jobs::reconstruct(
                 &capture,
@@ -471,6 +476,7 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
                 calibration.as_deref(),
                 &out,
                 report.as_deref(),
+                mesh,
             )?;
             for p in &r.pods {
                 println!(
@@ -483,10 +489,17 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
                     p.seconds_reproject
                 );
             }
-            println!(
-                "fused {} points, {} in the working volume, {} after voxels, {} after outliers; {:.2} s",
-                r.fused_points, r.after_crop, r.after_voxel, r.after_outliers, r.seconds_total
-            );
+            if mesh {
+                println!(
+                    "mesh of {} vertices, {} triangles; {:.2} s",
+                    r.fused_points, r.triangles, r.seconds_total
+                );
+            } else {
+                println!(
+                    "fused {} points, {} in the working volume, {} after voxels, {} after outliers; {:.2} s",
+                    r.fused_points, r.after_crop, r.after_voxel, r.after_outliers, r.seconds_total
+                );
+            }
             println!("wrote {}", out.display());
         }
         Cmd::Disparity {

@@ -5,7 +5,7 @@
 use conformd::conform::correspond::ScanSurface;
 use conformd::conform::{ConformOptions, conform};
 use conformd::mesh::landmarks::{Landmark, LandmarkPos};
-use conformd::mesh::{V3, read_mesh};
+use conformd::mesh::{Mesh, V3, read_mesh};
 use conformd::synth::rig::RigFile;
 use conformd::synth::{scanner, templates};
 use std::path::Path;
@@ -24,54 +24,13 @@ fn simulate_reconstruct_conform() {
         Some(&d.join("sim/calibration")),
         &d.join("scan.ply"),
         None,
+        false,
     )
     .unwrap(); // the calibration files simulate wrote, read back through OpenCV
     let scan = read_mesh(&d.join("scan.ply")).unwrap();
     let truth = read_mesh(&sets[0].join("truth.ply")).unwrap();
-    let diag = truth.diagonal();
-
-    // accuracy: scan points against the true surface
-    let surface = ScanSurface::new(&truth).unwrap();
-    let mut dist: Vec<f64> = scan
-        .vertices
-        .iter()
-        .map(|p| surface.distance(p) / diag)
-        .collect();
-    dist.sort_by(f64::total_cmp);
-    let mean = dist.iter().sum::<f64>() / dist.len() as f64;
-    let p95 = dist[dist.len() * 95 / 100];
-    eprintln!(
-        "distance percentiles 10/50/90: {:.3}% {:.3}% {:.3}%",
-        dist[dist.len() / 10] * 100.0,
-        dist[dist.len() / 2] * 100.0,
-        dist[dist.len() * 9 / 10] * 100.0
-    );
-
-    // coverage: the true surface the cameras see, by area, with scan points near it
-    let rig = RigFile::load(&rig_path).unwrap();
-    let centres: Vec<V3> = rig
-        .pods()
-        .iter()
-        .flat_map(|p| [p.left_pose.centre(), p.right_pose().centre()])
-        .collect();
-    let seen = scanner::visible_triangles(&truth, &centres);
-    let arr: Vec<[f64; 3]> = scan.vertices.iter().map(|p| [p.x, p.y, p.z]).collect();
-    let tree: kiddo::ImmutableKdTree<f64, 3> = kiddo::ImmutableKdTree::new_from_slice(&arr);
-    let (mut seen_area, mut covered) = (0.0, 0.0);
-    for t in (0..truth.triangles.len()).filter(|&t| seen[t]) {
-        let a = truth.face_normal_scaled(t).norm() / 2.0;
-        let c = truth.corners(t).iter().sum::<V3>() / 3.0;
-        seen_area += a;
-        if tree
-            .nearest_one::<kiddo::SquaredEuclidean>(&[c.x, c.y, c.z])
-            .distance
-            .sqrt()
-            < 0.01 * diag
-        {
-            covered += a;
-        }
-    }
-    let coverage = covered / seen_area;
+    let (mean, p95) = accuracy(&scan, &truth);
+    let coverage = coverage(&scan, &truth, &rig_path);
     eprintln!(
         "stereo: {} points ({} fused), mean distance {:.3}% p95 {:.3}% of the diagonal, coverage {:.1}% of the seen surface; valid disparity {:?}",
         scan.vertices.len(),
@@ -88,8 +47,62 @@ fn simulate_reconstruct_conform() {
     assert!(mean < 0.005, "mean distance {:.3}%", mean * 100.0);
     assert!(p95 < 0.015, "95th percentile {:.3}%", p95 * 100.0);
     assert!(coverage >= 0.8, "coverage {:.1}%", coverage * 100.0);
-
     // end to end: conform the rest template onto the reconstructed scan
+    let err = conform_error(&scan, &truth);
+    eprintln!(
+        "simulate -> reconstruct -> conform: mean correspondence error {:.3}% of the diagonal",
+        err * 100.0
+    );
+    assert!(err < 0.02, "correspondence error {:.3}%", err * 100.0);
+}
+
+/// Mean and 95th percentile of the scan's vertices' distances to the true surface,
+/// relative to the truth's diagonal.
+fn accuracy(scan: &Mesh, truth: &Mesh) -> (f64, f64) {
+    let surface = ScanSurface::new(truth).unwrap();
+    let mut dist: Vec<f64> = scan
+        .vertices
+        .iter()
+        .map(|p| surface.distance(p) / truth.diagonal())
+        .collect();
+    dist.sort_by(f64::total_cmp);
+    let mean = dist.iter().sum::<f64>() / dist.len() as f64;
+    (mean, dist[dist.len() * 95 / 100])
+}
+
+/// Share of the true surface the rig's cameras see (by area) that has scan vertices
+/// within 1% of the diagonal.
+fn coverage(scan: &Mesh, truth: &Mesh, rig_path: &Path) -> f64 {
+    let diag = truth.diagonal();
+    let rig = RigFile::load(rig_path).unwrap();
+    let centres: Vec<V3> = rig
+        .pods()
+        .iter()
+        .flat_map(|p| [p.left_pose.centre(), p.right_pose().centre()])
+        .collect();
+    let seen = scanner::visible_triangles(truth, &centres);
+    let arr: Vec<[f64; 3]> = scan.vertices.iter().map(|p| [p.x, p.y, p.z]).collect();
+    let tree: kiddo::ImmutableKdTree<f64, 3> = kiddo::ImmutableKdTree::new_from_slice(&arr);
+    let (mut seen_area, mut covered) = (0.0, 0.0);
+    for t in (0..truth.triangles.len()).filter(|&t| seen[t]) {
+        let a = truth.face_normal_scaled(t).norm() / 2.0;
+        let c = truth.corners(t).iter().sum::<V3>() / 3.0;
+        seen_area += a;
+        if tree
+            .nearest_one::<kiddo::SquaredEuclidean>(&[c.x, c.y, c.z])
+            .distance
+            .sqrt()
+            < 0.01 * diag
+        {
+            covered += a;
+        }
+    }
+    covered / seen_area
+}
+
+/// Conforms the rest pig template onto `scan` with landmarks placed from the truth, and
+/// returns the mean correspondence error relative to the diagonal.
+fn conform_error(scan: &Mesh, truth: &Mesh) -> f64 {
     let fig = templates::build(templates::Kind::Pig, 20_000);
     assert_eq!(
         fig.mesh.vertices.len(),
@@ -112,23 +125,98 @@ fn simulate_reconstruct_conform() {
         .collect();
     let r = conform(
         &fig.mesh,
-        &scan,
+        scan,
         Some((&lms, &scan_lms)),
         &ConformOptions::default(),
         &mut |_| {},
     )
     .unwrap();
-    let err = r
-        .mesh
+    r.mesh
         .vertices
         .iter()
         .zip(&truth.vertices)
         .map(|(a, b)| (a - b).norm())
         .sum::<f64>()
         / truth.vertices.len() as f64
-        / diag;
+        / truth.diagonal()
+}
+
+#[test]
+#[cfg_attr(debug_assertions, ignore = "heavy: runs in release builds")]
+fn reconstruct_mesh_cuts_depth_jumps_and_conforms() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let rig_path = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/rig.example.toml");
+    // legs forward and the head turned: legs in front of the belly, the snout before the shoulder
+    let sets =
+        conformd::jobs::simulate(&rig_path, "pig", "swing=15,nod=-10", 1, 2.0, &d.join("sim"))
+            .unwrap();
+    let truth = read_mesh(&sets[0].join("truth.ply")).unwrap();
+    let mut station =
+        conformd::jobs::Reconstruction::load(&rig_path, Some(&d.join("sim/calibration"))).unwrap();
+    let report = station
+        .run(&sets[0], &d.join("scan.ply"), None, true)
+        .unwrap();
+    let scan = read_mesh(&d.join("scan.ply")).unwrap();
+    assert_eq!(scan.triangles.len(), report.triangles);
+    let topo = conformd::mesh::topology::report(&scan);
+    let (mean, p95) = accuracy(&scan, &truth);
+    let cov = coverage(&scan, &truth, &rig_path);
+    // bridges: triangles whose corners lie on the true surface (within 0.5% of the
+    // diagonal) but whose centre hangs off it by over 1%: joins between two surfaces
+    let bridges = |m: &Mesh| {
+        let surface = ScanSurface::new(&truth).unwrap();
+        let diag = truth.diagonal();
+        (0..m.triangles.len())
+            .filter(|&t| {
+                let c = m.corners(t);
+                c.iter().all(|p| surface.distance(p) < 0.005 * diag)
+                    && surface.distance(&(c.iter().sum::<V3>() / 3.0)) > 0.01 * diag
+            })
+            .count()
+    };
+    let cut = bridges(&scan);
+    // the same grids joined without the cut, for comparison (the maps come from the cache)
+    station.options.mesh.depth_cut = f64::INFINITY;
+    let r2 = station
+        .run(&sets[0], &d.join("uncut.ply"), None, true)
+        .unwrap();
+    assert!(
+        r2.pods.iter().all(|p| p.maps_reused),
+        "second capture reuses the maps"
+    );
+    assert!(report.pods.iter().all(|p| !p.maps_reused));
+    let uncut = bridges(&read_mesh(&d.join("uncut.ply")).unwrap());
     eprintln!(
-        "simulate -> reconstruct -> conform: mean correspondence error {:.3}% of the diagonal",
+        "reconstruct --mesh: {} vertices, {} triangles, {} boundary edges; mean distance {:.3}% p95 {:.3}%, coverage {:.1}%; bridging triangles {} with the cut, {} without",
+        scan.vertices.len(),
+        scan.triangles.len(),
+        topo.boundary_edges,
+        mean * 100.0,
+        p95 * 100.0,
+        cov * 100.0,
+        cut,
+        uncut
+    );
+    assert!(mean < 0.005, "mean distance {:.3}%", mean * 100.0);
+    assert!(p95 < 0.015, "95th percentile {:.3}%", p95 * 100.0);
+    assert!(cov >= 0.8, "coverage {:.1}%", cov * 100.0);
+    assert!(
+        cut * 1000 <= scan.triangles.len(),
+        "{cut} bridging triangles of {}",
+        scan.triangles.len()
+    );
+    assert!(
+        uncut >= 5 * cut.max(1),
+        "the cut removes bridges ({uncut} -> {cut})"
+    );
+    assert!(
+        topo.boundary_edges > 0 && topo.inconsistent_edges == 0,
+        "a scan mesh has holes, consistently oriented"
+    );
+    let err = conform_error(&scan, &truth);
+    eprintln!(
+        "simulate -> reconstruct --mesh -> conform: mean correspondence error {:.3}%",
         err * 100.0
     );
     assert!(err < 0.02, "correspondence error {:.3}%", err * 100.0);
@@ -191,16 +279,61 @@ fn reconstruct_names_missing_and_mismatched_images() {
     )
     .unwrap();
     // so small a view matches nothing: said plainly, not an empty scan written
-    let e = conformd::jobs::reconstruct(&sets[0], &rig_path, None, &d.join("s.ply"), None)
+    let e = conformd::jobs::reconstruct(&sets[0], &rig_path, None, &d.join("s.ply"), None, false)
         .unwrap_err()
         .to_string();
     assert!(
-        e.contains("pod pod1") && e.contains("disparity map is empty"),
+        e.contains("pod pod1")
+            && e.contains("disparity map is empty")
+            && e.contains("camera pod1-left")
+            && e.contains("pod1-right.png"),
         "{e}"
     );
+    // the calibration simulate wrote belongs to this rig and is taken
+    let cal = d.join("sim/calibration");
+    conformd::jobs::Reconstruction::load(&rig_path, Some(&cal)).unwrap();
+    // calibrations from elsewhere are refused, naming the file and what does not fit
+    let good = std::fs::read_to_string(cal.join("pod1.yml")).unwrap();
+    let refused = |yaml: &str| -> String {
+        std::fs::write(cal.join("pod1.yml"), yaml).unwrap();
+        let e = match conformd::jobs::Reconstruction::load(&rig_path, Some(&cal)) {
+            Err(e) => e.to_string(),
+            Ok(_) => panic!("taken: {yaml}"),
+        };
+        assert!(e.contains("pod1.yml") && e.contains("another rig"), "{e}");
+        e
+    };
+    let e = refused(&good.replace("rig: \"crate-1\"", "rig: \"booth-7\""));
+    assert!(e.contains("booth-7") && e.contains("crate-1"), "{e}");
+    let e = refused(&std::fs::read_to_string(cal.join("pod2.yml")).unwrap());
+    assert!(e.contains("made for pod 'pod2'"), "{e}");
+    let e = refused(&good.replace("image_width: 160", "image_width: 1280"));
+    assert!(e.contains("1280x120") && e.contains("160x120"), "{e}");
+    let t = good.find("T: !!opencv-matrix").unwrap();
+    let e = refused(
+        &(good[..t].to_string()
+            + "T: !!opencv-matrix\n   rows: 3\n   cols: 1\n   dt: d\n   data: [ -0.30, 0.0, 0.0 ]\n"),
+    );
+    assert!(
+        e.contains("baseline is 0.3000 m") && e.contains("0.1200 m"),
+        "{e}"
+    );
+    std::fs::write(cal.join("pod1.yml"), &good).unwrap();
+    // a corrupt image
+    let png = sets[0].join("pod1-left.png");
+    let bytes = std::fs::read(&png).unwrap();
+    std::fs::write(&png, &bytes[..bytes.len() / 3]).unwrap();
+    let e = conformd::jobs::reconstruct(&sets[0], &rig_path, None, &d.join("s.ply"), None, false)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("camera pod1-left") && e.contains("pod1-left.png"),
+        "{e}"
+    );
+    std::fs::write(&png, &bytes).unwrap();
     // an image gone
     std::fs::remove_file(sets[0].join("pod1-right.png")).unwrap();
-    let e = conformd::jobs::reconstruct(&sets[0], &rig_path, None, &d.join("s.ply"), None)
+    let e = conformd::jobs::reconstruct(&sets[0], &rig_path, None, &d.join("s.ply"), None, false)
         .unwrap_err()
         .to_string();
     assert!(
@@ -211,7 +344,7 @@ fn reconstruct_names_missing_and_mismatched_images() {
     image::GrayImage::new(80, 60)
         .save(sets[0].join("pod1-right.png"))
         .unwrap();
-    let e = conformd::jobs::reconstruct(&sets[0], &rig_path, None, &d.join("s.ply"), None)
+    let e = conformd::jobs::reconstruct(&sets[0], &rig_path, None, &d.join("s.ply"), None, false)
         .unwrap_err()
         .to_string();
     assert!(
@@ -226,6 +359,7 @@ fn reconstruct_names_missing_and_mismatched_images() {
         Some(&d.join("cal")),
         &d.join("s.ply"),
         None,
+        false,
     )
     .unwrap_err()
     .to_string();
@@ -240,6 +374,7 @@ fn reconstruct_names_missing_and_mismatched_images() {
         Some(&d.join("cal")),
         &d.join("s.ply"),
         None,
+        false,
     )
     .unwrap_err()
     .to_string();
@@ -252,6 +387,7 @@ fn reconstruct_names_missing_and_mismatched_images() {
         None,
         &d.join("s.ply"),
         None,
+        false,
     )
     .unwrap_err()
     .to_string();

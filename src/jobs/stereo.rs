@@ -47,7 +47,7 @@ pub fn simulate(
     for pod in rig.pods() {
         write_atomic(
             &calib.join(format!("{}.yml", pod.id)),
-            pod.opencv_yaml().as_bytes(),
+            pod.opencv_yaml_of(Some(&rig.name)).as_bytes(),
         )?;
     }
     let mut dirs = Vec::new();
@@ -106,104 +106,204 @@ pub fn simulate(
     Ok(dirs)
 }
 
-/// Reconstructs a capture set into a scan in the rig frame: every pod of the rig file
-/// whose two images the set holds (cameras `<pod>-left` / `<pod>-right`, or the
-/// manifest's pod and side) is rectified, matched and reprojected, then all are fused.
-/// Writes the scan (PLY point cloud with normals) and, if asked, a JSON report.
-pub fn reconstruct(
-    capture: &Path,
-    rig_path: &Path,
-    calibration: Option<&Path>,
-    out: &Path,
-    report_path: Option<&Path>,
-) -> Result<crate::stereo::reconstruct::ReconstructReport, JobError> {
-    use crate::stereo::reconstruct::{
-        self as rc, PodReport, ReconstructOptions, ReconstructReport,
-    };
-    let t = std::time::Instant::now();
-    let rig = crate::synth::rig::RigFile::load(rig_path).map_err(JobError::Usage)?;
-    let manifest =
-        crate::rig::capture::Manifest::read(capture).map_err(|e| JobError::Usage(e.to_string()))?;
-    let opts = ReconstructOptions {
-        working_volume: rig.working_volume,
-        ..Default::default()
-    };
-    let mut report = ReconstructReport::default();
-    let mut points = Vec::new();
-    for pod in rig.pods() {
-        // a calibration file, when given, replaces the rig file's lenses and pair geometry
-        let pod = match calibration.map(|d| d.join(format!("{}.yml", pod.id))) {
-            Some(f) if f.exists() => crate::stereo::calibrate::read_yaml(
-                &f,
-                &pod.id,
-                pod.left_pose,
-                pod.left.width,
-                pod.left.height,
-            )
-            .map_err(JobError::Usage)?,
-            Some(f) => {
+/// A station's reconstruction set-up: the rig file, its pods with their calibrations
+/// (checked to belong to this rig), the options, and the rectification maps, built on the
+/// first capture and reused for every later one. The daemon keeps one; the CLI makes one
+/// per call ([`reconstruct`]).
+pub struct Reconstruction {
+    pub rig: crate::synth::rig::RigFile,
+    pub pods: Vec<crate::stereo::calib::Pod>,
+    pub options: crate::stereo::reconstruct::ReconstructOptions,
+    cache: crate::stereo::reconstruct::RectifierCache,
+}
+
+impl Reconstruction {
+    /// Loads the rig file and, from `calibration` when given, every pod's `<pod>.yml`
+    /// (OpenCV YAML), which replaces the rig file's lenses and pair geometry. A
+    /// calibration that names another rig or pod, was made for another image size, or
+    /// whose baseline is more than 25% off the rig file's is refused.
+    pub fn load(rig_path: &Path, calibration: Option<&Path>) -> Result<Reconstruction, JobError> {
+        let rig = crate::synth::rig::RigFile::load(rig_path).map_err(JobError::Usage)?;
+        let mut pods = Vec::new();
+        for pod in rig.pods() {
+            let Some(dir) = calibration else {
+                pods.push(pod);
+                continue;
+            };
+            let f = dir.join(format!("{}.yml", pod.id));
+            if !f.exists() {
                 return Err(JobError::Usage(format!(
                     "{}: no calibration for pod {}",
                     f.display(),
                     pod.id
                 )));
             }
-            None => pod,
-        };
-        let image = |side: &str| -> Result<Vec<u8>, JobError> {
-            let cam = manifest
-                .cameras
-                .iter()
-                .find(|c| c.pod == pod.id && c.side == side)
-                .ok_or_else(|| {
-                    JobError::Usage(format!(
-                        "{}: no {side} image of pod {} in the capture set",
-                        capture.display(),
-                        pod.id
-                    ))
-                })?;
-            let path = capture.join(&cam.file);
-            let img = image::open(&path)
-                .map_err(|e| {
-                    JobError::Usage(format!("camera {}: {}: {e}", cam.id, path.display()))
-                })?
-                .to_luma8();
-            if (img.width(), img.height()) != (pod.left.width, pod.left.height) {
-                return Err(JobError::Usage(format!(
-                    "camera {}: {} is {}x{}, the calibration is for {}x{}",
-                    cam.id,
-                    path.display(),
-                    img.width(),
-                    img.height(),
-                    pod.left.width,
-                    pod.left.height
+            let (cal, origin) = crate::stereo::calibrate::read_yaml(
+                &f,
+                &pod.id,
+                pod.left_pose,
+                pod.left.width,
+                pod.left.height,
+            )
+            .map_err(JobError::Usage)?;
+            let refuse = |why: String| {
+                JobError::Usage(format!(
+                    "{}: {why}; is it a calibration from another rig? (rig file {})",
+                    f.display(),
+                    rig_path.display()
+                ))
+            };
+            if let Some(r) = origin.rig.as_ref().filter(|r| **r != rig.name) {
+                return Err(refuse(format!(
+                    "made for rig '{r}', this rig is '{}'",
+                    rig.name
                 )));
             }
-            Ok(img.into_raw())
-        };
-        let (l, r) = (image("left")?, image("right")?);
-        let mut pr = PodReport {
-            pod: pod.id.clone(),
+            if let Some(p) = origin.pod.as_ref().filter(|p| **p != pod.id) {
+                return Err(refuse(format!("made for pod '{p}', not '{}'", pod.id)));
+            }
+            if let Some((w, h)) = origin
+                .image
+                .filter(|s| *s != (pod.left.width, pod.left.height))
+            {
+                return Err(refuse(format!(
+                    "made for {w}x{h} images, pod {}'s cameras give {}x{}",
+                    pod.id, pod.left.width, pod.left.height
+                )));
+            }
+            let ratio = cal.baseline() / pod.baseline();
+            if !(0.75..=1.25).contains(&ratio) {
+                return Err(refuse(format!(
+                    "its baseline is {:.4} m, the rig file gives pod {} {:.4} m",
+                    cal.baseline(),
+                    pod.id,
+                    pod.baseline()
+                )));
+            }
+            pods.push(cal);
+        }
+        let options = crate::stereo::reconstruct::ReconstructOptions {
+            working_volume: rig.working_volume,
             ..Default::default()
         };
-        let pts = rc::pod_points(&pod, &l, &r, &opts.sgbm, &mut pr)
-            .map_err(|e| JobError::Usage(format!("pod {}: OpenCV: {e}", pod.id)))?;
-        if pts.is_empty() {
-            return Err(JobError::Usage(format!(
-                "pod {}: the disparity map is empty (no surface matched)",
-                pod.id
-            )));
+        Ok(Reconstruction {
+            rig,
+            pods,
+            options,
+            cache: Default::default(),
+        })
+    }
+
+    /// Reconstructs one capture set (see [`reconstruct`]).
+    pub fn run(
+        &mut self,
+        capture: &Path,
+        out: &Path,
+        report_path: Option<&Path>,
+        as_mesh: bool,
+    ) -> Result<crate::stereo::reconstruct::ReconstructReport, JobError> {
+        use crate::stereo::reconstruct::{self as rc, PodImages, ReconstructError};
+        let manifest = crate::rig::capture::Manifest::read(capture)
+            .map_err(|e| JobError::Usage(e.to_string()))?;
+        // every image read and checked before any matching starts
+        let mut images = Vec::new();
+        let mut cameras = Vec::new();
+        for pod in &self.pods {
+            let mut pair = Vec::new();
+            for side in ["left", "right"] {
+                let cam = manifest
+                    .cameras
+                    .iter()
+                    .find(|c| c.pod == pod.id && c.side == side)
+                    .ok_or_else(|| {
+                        JobError::Usage(format!(
+                            "{}: no {side} image of pod {} in the capture set",
+                            capture.display(),
+                            pod.id
+                        ))
+                    })?;
+                let path = capture.join(&cam.file);
+                let named = |what: String| {
+                    JobError::Usage(format!("camera {}: {}: {what}", cam.id, path.display()))
+                };
+                let img = image::open(&path)
+                    .map_err(|e| named(e.to_string()))?
+                    .to_luma8();
+                if (img.width(), img.height()) != (pod.left.width, pod.left.height) {
+                    return Err(named(format!(
+                        "the image is {}x{}, the calibration is for {}x{}",
+                        img.width(),
+                        img.height(),
+                        pod.left.width,
+                        pod.left.height
+                    )));
+                }
+                pair.push(img.into_raw());
+                cameras.push((
+                    pod.id.clone(),
+                    format!("camera {} ({})", cam.id, path.display()),
+                ));
+            }
+            let right = pair.pop().expect("two sides");
+            images.push((pair.pop().expect("two sides"), right));
         }
-        points.extend(pts);
-        report.pods.push(pr);
+        let inputs: Vec<PodImages> = self
+            .pods
+            .iter()
+            .zip(&images)
+            .map(|(pod, (l, r))| PodImages {
+                pod,
+                left: l,
+                right: r,
+            })
+            .collect();
+        let mut report = rc::ReconstructReport::default();
+        let scan = rc::reconstruct(
+            &inputs,
+            &mut self.cache,
+            &self.options,
+            as_mesh,
+            &mut report,
+        )
+        .map_err(|e| {
+            let pod = match &e {
+                ReconstructError::OpenCv { pod, .. }
+                | ReconstructError::EmptyDisparity { pod }
+                | ReconstructError::Input { pod, .. } => pod.clone(),
+            };
+            let seen: Vec<&str> = cameras
+                .iter()
+                .filter(|(p, _)| *p == pod)
+                .map(|(_, c)| c.as_str())
+                .collect();
+            JobError::Usage(format!("{e}; images: {}", seen.join(", ")))
+        })?;
+        mesh::write_mesh(out, &scan)?;
+        if let Some(p) = report_path {
+            write_report(p, &report)?;
+        }
+        Ok(report)
     }
-    let scan = rc::fuse(points, &opts, &mut report);
-    report.seconds_total = t.elapsed().as_secs_f64();
-    mesh::write_mesh(out, &scan)?;
-    if let Some(p) = report_path {
-        write_report(p, &report)?;
-    }
-    Ok(report)
+}
+
+/// Reconstructs a capture set into a scan in the rig frame: every pod of the rig file
+/// (cameras found by the manifest's pod and side) is rectified, matched and reprojected;
+/// then the points are fused into a PLY point cloud with normals, or, `as_mesh`, each
+/// pod's depth grid is triangulated with a cut at depth jumps into one mesh with holes.
+/// Writes the scan and, if asked, a JSON report. Images are checked before any work:
+/// a missing, unreadable or wrongly sized image is named with its camera and file.
+///
+/// Example: `conformd reconstruct sim/<id> --rig config/rig.example.toml --out scan.ply`;
+/// see `tests/stereo.rs`.
+pub fn reconstruct(
+    capture: &Path,
+    rig_path: &Path,
+    calibration: Option<&Path>,
+    out: &Path,
+    report_path: Option<&Path>,
+    as_mesh: bool,
+) -> Result<crate::stereo::reconstruct::ReconstructReport, JobError> {
+    Reconstruction::load(rig_path, calibration)?.run(capture, out, report_path, as_mesh)
 }
 
 /// Disparity of an already-rectified pair, written as PFM (or 16-bit PNG x16 for .png).
@@ -373,7 +473,7 @@ pub fn calibrate(
         .unwrap_or_else(|| "pod".into());
     let (pod, report) = crate::stereo::calibrate::calibrate(&pairs, w, h, cols, rows, square, &id)
         .map_err(JobError::Usage)?;
-    let yaml = crate::stereo::calibrate::full_yaml(&pod).map_err(JobError::Usage)?;
+    let yaml = crate::stereo::calibrate::full_yaml(&pod, None).map_err(JobError::Usage)?;
     write_atomic(out, yaml.as_bytes())?;
     Ok(report)
 }

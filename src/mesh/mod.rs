@@ -126,6 +126,29 @@ impl Mesh {
     }
 }
 
+/// Keeps the triangles for which `keep(triangle index)` holds and drops vertices no kept
+/// triangle uses. Returns the mesh and, for each new vertex, its old index.
+pub fn keep_triangles(mesh: &Mesh, keep: impl Fn(usize) -> bool) -> (Mesh, Vec<u32>) {
+    let mut map = vec![u32::MAX; mesh.vertices.len()];
+    let mut old = Vec::new();
+    let mut out = Mesh::default();
+    for (t, tri) in mesh.triangles.iter().enumerate() {
+        if !keep(t) {
+            continue;
+        }
+        let nt = tri.map(|i| {
+            if map[i as usize] == u32::MAX {
+                map[i as usize] = old.len() as u32;
+                old.push(i);
+                out.vertices.push(mesh.vertices[i as usize]);
+            }
+            map[i as usize]
+        });
+        out.triangles.push(nt);
+    }
+    (out, old)
+}
+
 /// Area-weighted unit vertex normals of positions `v` (#V) and triangles `f` (#F).
 pub fn vertex_normals(v: &[V3], f: &[[u32; 3]]) -> Vec<V3> {
     let mut n = vec![V3::zeros(); v.len()];

@@ -109,6 +109,12 @@ impl Pod {
 
     /// The pod's calibration in OpenCV's FileStorage YAML (M1 D1 M2 D2 R T).
     pub fn opencv_yaml(&self) -> String {
+        self.opencv_yaml_of(None)
+    }
+
+    /// As [`Pod::opencv_yaml`], naming the rig the pod belongs to, so that a calibration
+    /// copied to another rig is recognised there.
+    pub fn opencv_yaml_of(&self, rig: Option<&str>) -> String {
         fn mat(name: &str, rows: usize, cols: usize, data: &[f64]) -> String {
             let d: Vec<String> = data.iter().map(|v| format!("{v:.10e}")).collect();
             format!(
@@ -119,6 +125,17 @@ impl Pod {
         let m = |k: &Intrinsics| k.matrix().transpose().iter().copied().collect::<Vec<_>>();
         let r: Vec<f64> = self.r.transpose().iter().copied().collect();
         let mut s = String::from("%YAML:1.0\n---\n");
+        // names are written only when YAML can carry them unquoted-safe
+        let plain = |n: &str| {
+            n.chars()
+                .all(|c| c.is_ascii_alphanumeric() || "-_.".contains(c))
+        };
+        if let Some(r) = rig.filter(|r| plain(r)) {
+            s.push_str(&format!("rig: \"{r}\"\n"));
+        }
+        if plain(&self.id) {
+            s.push_str(&format!("pod: \"{}\"\n", self.id));
+        }
         s.push_str(&format!(
             "image_width: {}\nimage_height: {}\n",
             self.left.width, self.left.height

@@ -188,7 +188,7 @@ pub fn calibrate(
 
 /// The pod's calibration with everything OpenCV's stereo tools read: M1 D1 M2 D2 R T,
 /// the essential and fundamental matrices E F, and the rectification R1 R2 P1 P2 Q.
-pub fn full_yaml(pod: &Pod) -> Result<String, String> {
+pub fn full_yaml(pod: &Pod, rig: Option<&str>) -> Result<String, String> {
     let run = || -> opencv::Result<String> {
         let rect = super::reconstruct::rectification(pod)?;
         let (r1, r2, p1, p2, q) = (rect.r1, rect.r2, rect.p1, rect.p2, rect.q);
@@ -205,7 +205,7 @@ pub fn full_yaml(pod: &Pod) -> Result<String, String> {
             .transpose()
             * e
             * pod.left.matrix().try_inverse().unwrap_or_default();
-        let mut s = pod.opencv_yaml();
+        let mut s = pod.opencv_yaml_of(rig);
         let block = |name: &str, rows: usize, cols: usize, data: &[f64]| {
             let d: Vec<String> = data.iter().map(|v| format!("{v:.10e}")).collect();
             format!(
@@ -230,23 +230,55 @@ pub fn full_yaml(pod: &Pod) -> Result<String, String> {
     run().map_err(|e| format!("OpenCV: {e}"))
 }
 
+/// What a calibration file says about where it belongs, when it says it.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct CalibrationOrigin {
+    pub rig: Option<String>,
+    pub pod: Option<String>,
+    /// image width and height the calibration was made for
+    pub image: Option<(u32, u32)>,
+}
+
 /// Reads a pod's calibration (M1 D1 M2 D2 R T, as written by `calibrate` or `simulate`)
-/// through OpenCV's FileStorage; the pose in the rig frame is the caller's.
+/// through OpenCV's FileStorage, with the rig, pod and image size it names; the pose in
+/// the rig frame is the caller's. `width` x `height` apply when the file names no size.
 pub fn read_yaml(
     path: &std::path::Path,
     id: &str,
     left_pose: Pose,
     width: u32,
     height: u32,
-) -> Result<Pod, String> {
+) -> Result<(Pod, CalibrationOrigin), String> {
     let name = path.display().to_string();
-    let run = || -> opencv::Result<Result<Pod, String>> {
+    let run = || -> opencv::Result<Result<(Pod, CalibrationOrigin), String>> {
         let fs = core::FileStorage::new(&name, core::FileStorage_Mode::READ as i32, "")?;
         if !fs.is_opened()? {
             return Ok(Err(format!(
                 "{name}: cannot be opened as an OpenCV calibration file"
             )));
         }
+        let text = |key: &str| -> opencv::Result<Option<String>> {
+            let n = fs.get(key)?;
+            Ok(if n.is_string()? {
+                Some(n.string()?)
+            } else {
+                None
+            })
+        };
+        let int = |key: &str| -> opencv::Result<Option<u32>> {
+            let n = fs.get(key)?;
+            Ok(if n.is_int()? {
+                u32::try_from(n.to_i32()?).ok()
+            } else {
+                None
+            })
+        };
+        let origin = CalibrationOrigin {
+            rig: text("rig")?,
+            pod: text("pod")?,
+            image: int("image_width")?.zip(int("image_height")?),
+        };
+        let (width, height) = origin.image.unwrap_or((width, height));
         let mut mats = Vec::new();
         for key in ["M1", "D1", "M2", "D2", "R", "T"] {
             let m = fs.get(key)?.mat()?;
@@ -269,14 +301,15 @@ pub fn read_yaml(
             }
         }
         let t = mats[5].data_typed::<f64>()?;
-        Ok(Ok(Pod {
+        let pod = Pod {
             id: id.into(),
             left: to_intrinsics(&mats[0], &mats[1], width, height)?,
             right: to_intrinsics(&mats[2], &mats[3], width, height)?,
             left_pose,
             r: nalgebra::Matrix3::from_row_slice(mats[4].data_typed::<f64>()?),
             t: V3::new(t[0], t[1], t[2]),
-        }))
+        };
+        Ok(Ok((pod, origin)))
     };
     run().map_err(|e| format!("{name}: OpenCV: {e}"))?
 }

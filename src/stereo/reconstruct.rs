@@ -1,11 +1,12 @@
-//! A capture set to a scan: per pod, rectify (maps from the calibration), disparity,
-//! reproject into the left camera, then into the rig frame; fuse all pods, crop to the
-//! working volume, voxel-downsample, remove outliers, and estimate normals turned towards
-//! the camera that saw each point.
+//! A capture set to a scan: per pod, rectify (maps built once per calibration and
+//! cached), disparity, reproject into the rig frame; then either fuse all pods' points
+//! (crop to the working volume, voxel-downsample, remove outliers, normals turned towards
+//! the camera that saw each point) or triangulate each pod's depth grid with a cut at
+//! depth discontinuities into one mesh with holes.
 
 use super::calib::Pod;
 use super::disparity::{SgbmOptions, disparity_mats, gray_mat, to_pixels};
-use crate::mesh::{Mesh, V3};
+use crate::mesh::{Mesh, V3, keep_triangles, topology};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use opencv::calib3d;
 use opencv::core::{self, Mat, Rect, Size};
@@ -27,6 +28,31 @@ pub struct ReconstructOptions {
     pub outlier_sigma: f64,
     /// [min, max] corners of the rig's working volume (m)
     pub working_volume: Option<[[f64; 3]; 2]>,
+    /// triangulation of the depth grids (`reconstruct --mesh`)
+    pub mesh: GridMeshOptions,
+}
+
+/// How a pod's depth grid becomes a mesh ([`DepthGrid::mesh`]).
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct GridMeshOptions {
+    /// grid spacing, pixels
+    pub step: usize,
+    /// neighbours further apart in depth than this many times the lateral grid spacing
+    /// are not joined (a surface steeper than atan(depth_cut) to the image plane)
+    pub depth_cut: f64,
+    /// smallest connected piece kept, triangles
+    pub min_component: usize,
+}
+
+impl Default for GridMeshOptions {
+    fn default() -> Self {
+        GridMeshOptions {
+            step: 3,
+            depth_cut: 4.0,
+            min_component: 200,
+        }
+    }
 }
 
 impl Default for ReconstructOptions {
@@ -37,6 +63,7 @@ impl Default for ReconstructOptions {
             outlier_k: 8,
             outlier_sigma: 2.0,
             working_volume: None,
+            mesh: GridMeshOptions::default(),
         }
     }
 }
@@ -49,6 +76,8 @@ pub struct ReconstructReport {
     pub after_crop: usize,
     pub after_voxel: usize,
     pub after_outliers: usize,
+    /// triangles of the scan (`--mesh`; 0 for a point cloud)
+    pub triangles: usize,
     pub seconds_fuse: f64,
     pub seconds_total: f64,
 }
@@ -58,6 +87,8 @@ pub struct PodReport {
     pub pod: String,
     pub points: usize,
     pub valid_disparity_share: f64,
+    /// the rectification maps came from the cache (built for an earlier capture)
+    pub maps_reused: bool,
     pub seconds_rectify: f64,
     pub seconds_disparity: f64,
     pub seconds_reproject: f64,
@@ -141,59 +172,242 @@ pub fn rectification(pod: &Pod) -> opencv::Result<Rectification> {
     Ok(out)
 }
 
-/// Points (rig frame) and their viewing camera centre, from one pod's image pair.
-pub fn pod_points(
-    pod: &Pod,
-    left: &[u8],
-    right: &[u8],
-    o: &SgbmOptions,
-    report: &mut PodReport,
-) -> opencv::Result<Vec<(V3, V3)>> {
-    let (w, h) = (pod.left.width, pod.left.height);
-    let size = Size::new(w as i32, h as i32);
-    let t0 = Instant::now();
-    let Rectification {
-        m1,
-        d1,
-        m2,
-        d2,
-        r1,
-        r2,
-        p1,
-        p2,
-        q,
-    } = rectification(pod)?;
-    let tc = Instant::now();
-    let (lm, rm) = (gray_mat(left, w, h)?, gray_mat(right, w, h)?);
-    let own_copies = tc.elapsed().as_secs_f64();
-    let rectify = |m: &Mat, d: &Mat, rr: &Mat, pp: &Mat, img: &Mat| -> opencv::Result<Mat> {
-        let (mut map1, mut map2) = (Mat::default(), Mat::default());
-        calib3d::init_undistort_rectify_map(
-            m,
-            d,
-            rr,
-            pp,
-            size,
-            core::CV_32FC1,
-            &mut map1,
-            &mut map2,
-        )?;
+/// A pod ready to reconstruct: its calibration, its rectification and both cameras'
+/// undistort-rectify maps (fixed-point, for a fast `remap`). Building the maps is most of
+/// a rectification's cost, so a station builds them once per calibration
+/// ([`RectifierCache`]) and reuses them for every capture.
+pub struct PodRectifier {
+    pub pod: Pod,
+    pub rect: Rectification,
+    maps: [(Mat, Mat); 2],
+    /// rectified-left camera coordinates to the rig frame: `x_rig = rot * x + shift`
+    rot: nalgebra::Matrix3<f64>,
+    shift: V3,
+    /// focal length of the rectified cameras, pixels
+    focal: f64,
+}
+
+impl PodRectifier {
+    pub fn new(pod: &Pod) -> opencv::Result<PodRectifier> {
+        let size = Size::new(pod.left.width as i32, pod.left.height as i32);
+        let rect = rectification(pod)?;
+        let map = |m: &Mat, d: &Mat, r: &Mat, p: &Mat| -> opencv::Result<(Mat, Mat)> {
+            let (mut m1, mut m2) = (Mat::default(), Mat::default());
+            calib3d::init_undistort_rectify_map(
+                m,
+                d,
+                r,
+                p,
+                size,
+                core::CV_16SC2,
+                &mut m1,
+                &mut m2,
+            )?;
+            Ok((m1, m2))
+        };
+        let maps = [
+            map(&rect.m1, &rect.d1, &rect.r1, &rect.p1)?,
+            map(&rect.m2, &rect.d2, &rect.r2, &rect.p2)?,
+        ];
+        // rectified left -> left camera (R1^T) -> rig (pose inverse)
+        let r1 = nalgebra::Matrix3::from_row_slice(rect.r1.data_typed::<f64>()?);
+        let rt = pod.left_pose.r.transpose();
+        let focal = *rect.p1.at_2d::<f64>(0, 0)?;
+        Ok(PodRectifier {
+            pod: pod.clone(),
+            rot: rt * r1.transpose(),
+            shift: -(rt * pod.left_pose.t),
+            focal,
+            rect,
+            maps,
+        })
+    }
+
+    fn remap(&self, right: bool, img: &Mat) -> opencv::Result<Mat> {
+        let (m1, m2) = &self.maps[right as usize];
         let mut out = Mat::default();
         imgproc::remap(
             img,
             &mut out,
-            &map1,
-            &map2,
+            m1,
+            m2,
             imgproc::INTER_LINEAR,
             core::BORDER_CONSTANT,
             core::Scalar::all(0.0),
         )?;
         Ok(out)
+    }
+}
+
+/// Rectifiers keyed by a fingerprint of the pod's calibration and pose: a new
+/// calibration gets new maps, an unchanged one reuses its maps.
+#[derive(Default)]
+pub struct RectifierCache {
+    entries: HashMap<u64, PodRectifier>,
+    /// how many rectifiers were built, and how many lookups found one ready
+    pub built: usize,
+    pub reused: usize,
+}
+
+impl RectifierCache {
+    /// The pod's rectifier, and whether it was ready (built for an earlier capture).
+    pub fn get(&mut self, pod: &Pod) -> opencv::Result<(&PodRectifier, bool)> {
+        let key = pod_fingerprint(pod);
+        let ready = self.entries.contains_key(&key);
+        if ready {
+            self.reused += 1;
+        } else {
+            self.entries.insert(key, PodRectifier::new(pod)?);
+            self.built += 1;
+        }
+        Ok((&self.entries[&key], ready))
+    }
+}
+
+/// FNV-1a over the pod's id and every number of its calibration and pose.
+fn pod_fingerprint(pod: &Pod) -> u64 {
+    let mut h = 0xcbf2_9ce4_8422_2325u64;
+    let mut eat = |bytes: &[u8]| {
+        for b in bytes {
+            h = (h ^ *b as u64).wrapping_mul(0x100_0000_01b3);
+        }
     };
-    let (lr, rr) = (
-        rectify(&m1, &d1, &r1, &p1, &lm)?,
-        rectify(&m2, &d2, &r2, &p2, &rm)?,
-    );
+    eat(pod.id.as_bytes());
+    for k in [&pod.left, &pod.right] {
+        eat(&k.width.to_le_bytes());
+        eat(&k.height.to_le_bytes());
+        for v in [k.fx, k.fy, k.cx, k.cy].iter().chain(&k.dist) {
+            eat(&v.to_le_bytes());
+        }
+    }
+    let nums = pod
+        .r
+        .iter()
+        .chain(pod.t.iter())
+        .chain(pod.left_pose.r.iter())
+        .chain(pod.left_pose.t.iter());
+    for v in nums {
+        eat(&v.to_le_bytes());
+    }
+    h
+}
+
+/// What one pod saw: a point in the rig frame for every pixel of the rectified left
+/// image where the disparity is valid (NaN elsewhere), row-major, `width` x `height`.
+pub struct DepthGrid {
+    pub pod: String,
+    pub width: usize,
+    pub height: usize,
+    pub points: Vec<[f32; 3]>,
+    /// the left camera's centre in the rig frame
+    pub camera: V3,
+    /// focal length of the rectified image, pixels
+    pub focal: f64,
+}
+
+impl DepthGrid {
+    fn at(&self, i: usize) -> Option<V3> {
+        let p = self.points[i];
+        p[0].is_finite()
+            .then(|| V3::new(p[0] as f64, p[1] as f64, p[2] as f64))
+    }
+
+    /// The valid points.
+    pub fn valid(&self) -> impl Iterator<Item = V3> + '_ {
+        (0..self.points.len()).filter_map(|i| self.at(i))
+    }
+
+    /// Triangulates the grid every `o.step` pixels into a mesh with holes: a cell's two
+    /// triangles are kept when all three corners are valid, inside `volume`, and no two
+    /// differ in distance from the camera by more than `o.depth_cut` times the grid's
+    /// lateral spacing there (a steeper "surface" is a jump between two surfaces, e.g. a
+    /// leg in front of the body, and is cut). Triangles face the camera; components of
+    /// fewer than `o.min_component` triangles (matching noise) are dropped.
+    ///
+    /// Out: vertices (#V, rig frame), triangles (#F), vertex normals; the pod's vertices only.
+    pub fn mesh(&self, o: &GridMeshOptions, volume: Option<[[f64; 3]; 2]>) -> Mesh {
+        let s = o.step.max(1);
+        let (gw, gh) = ((self.width - 1) / s + 1, (self.height - 1) / s + 1);
+        let mut index = vec![u32::MAX; gw * gh];
+        let mut vertices = Vec::new();
+        let mut dist = Vec::new();
+        for gy in 0..gh {
+            for gx in 0..gw {
+                let Some(p) = self.at(gy * s * self.width + gx * s) else {
+                    continue;
+                };
+                if let Some([lo, hi]) = volume
+                    && !(0..3).all(|k| p[k] >= lo[k] && p[k] <= hi[k])
+                {
+                    continue;
+                }
+                index[gy * gw + gx] = vertices.len() as u32;
+                dist.push((p - self.camera).norm());
+                vertices.push(p);
+            }
+        }
+        let lateral = s as f64 / self.focal;
+        let mut triangles = Vec::new();
+        let mut add = |t: [u32; 3]| {
+            if t.contains(&u32::MAX) {
+                return;
+            }
+            let d = t.map(|i| dist[i as usize]);
+            let (lo, hi) = (d[0].min(d[1]).min(d[2]), d[0].max(d[1]).max(d[2]));
+            if hi - lo > o.depth_cut * lo * lateral {
+                return;
+            }
+            let [a, b, c] = t.map(|i| vertices[i as usize]);
+            let n = (b - a).cross(&(c - a));
+            triangles.push(if n.dot(&(self.camera - a)) >= 0.0 {
+                t
+            } else {
+                [t[0], t[2], t[1]]
+            });
+        };
+        for gy in 0..gh.saturating_sub(1) {
+            for gx in 0..gw.saturating_sub(1) {
+                let at = |x: usize, y: usize| index[y * gw + x];
+                let (a, b, c, d) = (
+                    at(gx, gy),
+                    at(gx + 1, gy),
+                    at(gx, gy + 1),
+                    at(gx + 1, gy + 1),
+                );
+                add([a, c, b]);
+                add([b, c, d]);
+            }
+        }
+        let (labels, count) = topology::components(vertices.len(), &triangles);
+        let mut size = vec![0usize; count];
+        for t in &triangles {
+            size[labels[t[0] as usize] as usize] += 1;
+        }
+        let raw = Mesh::new(vertices, triangles);
+        let (mut mesh, _) = keep_triangles(&raw, |t| {
+            size[labels[raw.triangles[t][0] as usize] as usize] >= o.min_component
+        });
+        mesh.normals = Some(mesh.vertex_normals());
+        mesh
+    }
+}
+
+/// Rectifies one pod's image pair with its cached maps, matches, and reprojects every
+/// valid pixel into the rig frame. The pixels are 8-bit grey, the calibration's size.
+pub fn pod_grid(
+    rectifier: &PodRectifier,
+    left: &[u8],
+    right: &[u8],
+    o: &SgbmOptions,
+    report: &mut PodReport,
+) -> opencv::Result<DepthGrid> {
+    let pod = &rectifier.pod;
+    let (w, h) = (pod.left.width, pod.left.height);
+    let t0 = Instant::now();
+    let tc = Instant::now();
+    let (lm, rm) = (gray_mat(left, w, h)?, gray_mat(right, w, h)?);
+    let own_copies = tc.elapsed().as_secs_f64();
+    let (lr, rr) = (rectifier.remap(false, &lm)?, rectifier.remap(true, &rm)?);
     report.seconds_rectify = t0.elapsed().as_secs_f64();
     let t1 = Instant::now();
     let disp = disparity_mats(&lr, &rr, o)?;
@@ -204,7 +418,7 @@ pub fn pod_points(
     let mut dispf = Mat::default();
     disp.convert_to(&mut dispf, core::CV_32F, 1.0 / 16.0, 0.0)?;
     let mut xyz = Mat::default();
-    calib3d::reproject_image_to_3d(&dispf, &mut xyz, &q, true, core::CV_32F)?;
+    calib3d::reproject_image_to_3d(&dispf, &mut xyz, &rectifier.rect.q, true, core::CV_32F)?;
     let pts = xyz.data_typed::<core::Vec3f>()?;
     // texture mask: local standard deviation of the rectified left image
     let mut lf = Mat::default();
@@ -213,49 +427,142 @@ pub fn pod_points(
     core::multiply(&lf, &lf, &mut sq, 1.0, -1)?;
     let (mut mean, mut mean_sq) = (Mat::default(), Mat::default());
     let k = Size::new(5, 5);
-    imgproc::blur(
-        &lf,
-        &mut mean,
-        k,
-        core::Point::new(-1, -1),
-        core::BORDER_REFLECT,
-    )?;
-    imgproc::blur(
-        &sq,
-        &mut mean_sq,
-        k,
-        core::Point::new(-1, -1),
-        core::BORDER_REFLECT,
-    )?;
+    let anchor = core::Point::new(-1, -1);
+    imgproc::blur(&lf, &mut mean, k, anchor, core::BORDER_REFLECT)?;
+    imgproc::blur(&sq, &mut mean_sq, k, anchor, core::BORDER_REFLECT)?;
     // from here on the work is conformd's own
     let own_start = Instant::now();
     let (m, m2) = (mean.data_typed::<f32>()?, mean_sq.data_typed::<f32>()?);
     let min_var = (o.min_contrast * o.min_contrast) as f32;
-    // rectified left camera -> left camera -> rig frame
-    let r1m = nalgebra::Matrix3::from_row_slice(r1.data_typed::<f64>()?);
-    let to_cam = r1m.transpose();
-    let pose = pod.left_pose;
-    let rt = pose.r.transpose();
-    let centre = pose.centre();
-    let mut out = Vec::new();
-    for (i, p) in pts.iter().enumerate() {
-        if !px.values[i].is_finite()
-            || px.values[i] <= o.min_disparity as f32
-            || m2[i] - m[i] * m[i] < min_var
-        {
-            continue;
-        }
-        let c = V3::new(p[0] as f64, p[1] as f64, p[2] as f64);
-        if !c.iter().all(|v| v.is_finite()) || c.z <= 0.0 || c.z > 1e4 {
-            continue;
-        }
-        let cam = to_cam * c;
-        out.push((rt * (cam - pose.t), centre));
-    }
-    report.points = out.len();
+    let (rot, shift) = (rectifier.rot, rectifier.shift);
+    let invalid = [f32::NAN; 3];
+    let mut count = 0;
+    let points: Vec<[f32; 3]> = pts
+        .iter()
+        .enumerate()
+        .map(|(i, p)| {
+            let d = px.values[i];
+            if !d.is_finite() || d <= o.min_disparity as f32 || m2[i] - m[i] * m[i] < min_var {
+                return invalid;
+            }
+            let c = V3::new(p[0] as f64, p[1] as f64, p[2] as f64);
+            if !c.iter().all(|v| v.is_finite()) || c.z <= 0.0 || c.z > 1e4 {
+                return invalid;
+            }
+            count += 1;
+            let r = rot * c + shift;
+            [r.x as f32, r.y as f32, r.z as f32]
+        })
+        .collect();
+    report.points = count;
     report.seconds_own = own_start.elapsed().as_secs_f64() + own_copies;
     report.seconds_reproject = t2.elapsed().as_secs_f64();
-    Ok(out)
+    Ok(DepthGrid {
+        pod: pod.id.clone(),
+        width: w as usize,
+        height: h as usize,
+        points,
+        camera: pod.left_pose.centre(),
+        focal: rectifier.focal,
+    })
+}
+
+/// One pod's pixels, for [`reconstruct`].
+pub struct PodImages<'a> {
+    pub pod: &'a Pod,
+    pub left: &'a [u8],
+    pub right: &'a [u8],
+}
+
+/// Why a reconstruction failed; the caller adds camera names and files.
+#[derive(Debug, thiserror::Error)]
+pub enum ReconstructError {
+    #[error("pod {pod}: OpenCV: {source}")]
+    OpenCv { pod: String, source: opencv::Error },
+    #[error("pod {pod}: the disparity map is empty (no surface matched)")]
+    EmptyDisparity { pod: String },
+    #[error("pod {pod}: {msg}")]
+    Input { pod: String, msg: String },
+}
+
+/// What [`reconstruct`] makes: a point cloud with normals, or (`as_mesh`) every pod's
+/// triangulated depth grid in one mesh with holes.
+pub fn reconstruct(
+    pods: &[PodImages],
+    cache: &mut RectifierCache,
+    o: &ReconstructOptions,
+    as_mesh: bool,
+    report: &mut ReconstructReport,
+) -> Result<Mesh, ReconstructError> {
+    let t = Instant::now();
+    let mut grids = Vec::new();
+    for p in pods {
+        let id = p.pod.id.clone();
+        let n = (p.pod.left.width * p.pod.left.height) as usize;
+        if p.left.len() != n || p.right.len() != n {
+            return Err(ReconstructError::Input {
+                pod: id,
+                msg: format!(
+                    "images of {} and {} pixels, the calibration is for {}x{}",
+                    p.left.len(),
+                    p.right.len(),
+                    p.pod.left.width,
+                    p.pod.left.height
+                ),
+            });
+        }
+        let ocv = |source| ReconstructError::OpenCv {
+            pod: id.clone(),
+            source,
+        };
+        let (rectifier, maps_reused) = cache.get(p.pod).map_err(ocv)?;
+        let mut pr = PodReport {
+            pod: id.clone(),
+            maps_reused,
+            ..Default::default()
+        };
+        let grid = pod_grid(rectifier, p.left, p.right, &o.sgbm, &mut pr).map_err(ocv)?;
+        if pr.points == 0 {
+            return Err(ReconstructError::EmptyDisparity { pod: id });
+        }
+        report.pods.push(pr);
+        grids.push(grid);
+    }
+    let scan = if as_mesh {
+        fuse_meshes(&grids, o, report)
+    } else {
+        let points = grids
+            .iter()
+            .flat_map(|g| g.valid().map(move |p| (p, g.camera)))
+            .collect();
+        fuse(points, o, report)
+    };
+    report.seconds_total = t.elapsed().as_secs_f64();
+    Ok(scan)
+}
+
+/// Every pod's depth grid triangulated ([`DepthGrid::mesh`]) and gathered into one mesh.
+pub fn fuse_meshes(
+    grids: &[DepthGrid],
+    o: &ReconstructOptions,
+    report: &mut ReconstructReport,
+) -> Mesh {
+    let t = Instant::now();
+    let mut out = Mesh::default();
+    let mut normals = Vec::new();
+    for g in grids {
+        let m = g.mesh(&o.mesh, o.working_volume);
+        let base = out.vertices.len() as u32;
+        out.vertices.extend(&m.vertices);
+        normals.extend(m.normals.unwrap_or_default());
+        out.triangles
+            .extend(m.triangles.iter().map(|t| t.map(|i| i + base)));
+    }
+    out.normals = Some(normals);
+    report.fused_points = out.vertices.len();
+    report.triangles = out.triangles.len();
+    report.seconds_fuse = t.elapsed().as_secs_f64();
+    out
 }
 
 /// Fuses pods' points into one scan with normals.

@@ -3,7 +3,8 @@
 //! deformed and scanned from a few viewpoints, with ground-truth correspondence.
 
 use super::figure::{self, Pose};
-use super::{icosphere, keep_triangles, scanner, tessellated_box};
+use super::{icosphere, scanner, tessellated_box};
+use crate::mesh::keep_triangles;
 use crate::mesh::landmarks::{Landmark, LandmarkPos};
 use crate::mesh::{Mesh, V3};
 use rand::SeedableRng;

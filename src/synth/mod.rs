@@ -122,29 +122,6 @@ pub fn tessellated_box(size: V3, n: usize) -> Mesh {
     mesh
 }
 
-/// Keeps the triangles for which `keep(triangle index)` holds and drops vertices no kept
-/// triangle uses. Returns the mesh and, for each new vertex, its old index.
-pub fn keep_triangles(mesh: &Mesh, keep: impl Fn(usize) -> bool) -> (Mesh, Vec<u32>) {
-    let mut map = vec![u32::MAX; mesh.vertices.len()];
-    let mut old = Vec::new();
-    let mut out = Mesh::default();
-    for (t, tri) in mesh.triangles.iter().enumerate() {
-        if !keep(t) {
-            continue;
-        }
-        let nt = tri.map(|i| {
-            if map[i as usize] == u32::MAX {
-                map[i as usize] = old.len() as u32;
-                old.push(i);
-                out.vertices.push(mesh.vertices[i as usize]);
-            }
-            map[i as usize]
-        });
-        out.triangles.push(nt);
-    }
-    (out, old)
-}
-
 /// Distance from `p` to the surface of an axis-aligned box centred at the origin.
 pub fn distance_to_box_surface(p: &V3, size: &V3) -> f64 {
     let h = size / 2.0;
