@@ -117,6 +117,10 @@ enum Cmd {
         /// chessboard views per pod
         #[arg(long, default_value_t = 15)]
         views: usize,
+        /// with --chessboard: one capture set of the board lying on the rig's floor, seen
+        /// by every pod (for `calibrate --placement`), instead of calibration views
+        #[arg(long, requires = "chessboard")]
+        placement: bool,
         #[arg(long, default_value = "")]
         pose: String,
         #[arg(long, default_value_t = 1)]
@@ -127,10 +131,30 @@ enum Cmd {
         #[arg(long)]
         out: PathBuf,
     },
-    /// Stereo calibration of one pod from chessboard pairs (leftNN/rightNN images).
+    /// Stereo calibration of one pod from chessboard pairs (leftNN/rightNN images); or,
+    /// with --placement, every pod's pose in the rig frame from one capture set of a
+    /// board that all pods see (writes the rig file with measured poses).
     Calibrate {
+        /// chessboard pairs of one pod
+        #[arg(
+            long,
+            required_unless_present = "placement",
+            conflicts_with = "placement"
+        )]
+        images: Option<PathBuf>,
+        /// a capture set of the board lying in the rig, seen by every pod
+        #[arg(long, requires = "rig")]
+        placement: Option<PathBuf>,
+        /// the rig file whose pod poses --placement measures
         #[arg(long)]
-        images: PathBuf,
+        rig: Option<PathBuf>,
+        /// folder of pod calibrations (`<pod>.yml`) for --placement's lenses
+        #[arg(long)]
+        calibration: Option<PathBuf>,
+        /// where the board's origin lies in the rig frame, for --placement: x,y,z (m); the
+        /// board lies flat, its axes along the rig's
+        #[arg(long, default_value = "0,0,0")]
+        board_origin: String,
         /// inner corners, e.g. 9x6
         #[arg(long)]
         board: String,
@@ -420,12 +444,16 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
             chessboard,
             square,
             views,
+            placement,
             pose,
             captures,
             noise,
             out,
         } => {
-            if let Some(board) = chessboard {
+            if let (true, Some(board)) = (placement, &chessboard) {
+                let d = jobs::simulate_placement(&rig, board, square, noise, &out)?;
+                println!("wrote {}", d.display());
+            } else if let Some(board) = chessboard {
                 for d in jobs::simulate_chessboard(&rig, &board, square, views, &out)? {
                     println!("wrote {}", d.display());
                 }
@@ -438,11 +466,49 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
             }
         }
         Cmd::Calibrate {
-            images,
+            images: None,
+            placement: Some(capture),
+            rig,
+            calibration,
+            board_origin,
             board,
             square,
             out,
         } => {
+            let origin = parse_point(&board_origin)?;
+            let rig = rig.expect("clap requires --rig with --placement");
+            let found = jobs::calibrate_placement(
+                &capture,
+                &rig,
+                calibration.as_deref(),
+                &board,
+                square,
+                origin,
+                &out,
+            )?;
+            for p in &found {
+                println!(
+                    "pod {}: left camera at ({:.4}, {:.4}, {:.4}) m; corner RMS {:.3} / {:.3} px; left-right check {:.2} mm, {:.3} deg",
+                    p.pod,
+                    p.position[0],
+                    p.position[1],
+                    p.position[2],
+                    p.rms_left,
+                    p.rms_right,
+                    p.left_right_mm,
+                    p.left_right_deg
+                );
+            }
+            println!("wrote {}", out.display());
+        }
+        Cmd::Calibrate {
+            images,
+            board,
+            square,
+            out,
+            ..
+        } => {
+            let images = images.expect("clap requires --images without --placement");
             let r = jobs::calibrate(&images, &board, square, &out)?;
             println!(
                 "RMS reprojection error {:.3} px over {} of {} views; baseline {:.4}",
@@ -625,5 +691,20 @@ fn main() -> ExitCode {
             eprintln!("conformd: {e}");
             ExitCode::FAILURE
         }
+    }
+}
+
+/// Parses `x,y,z`.
+fn parse_point(s: &str) -> Result<[f64; 3], jobs::JobError> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|t| t.trim().parse::<f64>())
+        .collect::<Result<_, _>>()
+        .map_err(|_| jobs::JobError::Usage(format!("'{s}': expected x,y,z in metres")))?;
+    match v[..] {
+        [x, y, z] if v.iter().all(|c| c.is_finite()) => Ok([x, y, z]),
+        _ => Err(jobs::JobError::Usage(format!(
+            "'{s}': expected x,y,z in metres"
+        ))),
     }
 }

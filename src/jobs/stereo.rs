@@ -16,7 +16,6 @@ pub fn simulate(
     noise: f64,
     out: &Path,
 ) -> Result<Vec<PathBuf>, JobError> {
-    use crate::rig::capture::{CameraRecord, Manifest, TriggerRecord, utc_stamp};
     use crate::synth::templates;
     let rig = crate::synth::rig::RigFile::load(rig_path).map_err(JobError::Usage)?;
     let mesh = match subject.parse::<templates::Kind>() {
@@ -52,58 +51,258 @@ pub fn simulate(
     }
     let mut dirs = Vec::new();
     for n in 0..captures {
-        let id = format!("{}-sim{n:03}", utc_stamp(std::time::SystemTime::now()));
-        let partial = out.join(format!(".{id}.partial"));
-        std::fs::create_dir_all(&partial).map_err(|e| io(&partial, e))?;
-        let mut cameras = Vec::new();
-        for r in crate::synth::rig::render_rig(&rig, &mesh, noise, n as u64) {
-            let file = format!("{}-{}.png", r.pod, r.side);
-            let img = image::GrayImage::from_raw(r.width, r.height, r.pixels).expect("sized");
-            let mut bytes = Vec::new();
-            img.write_to(
-                &mut std::io::Cursor::new(&mut bytes),
-                image::ImageFormat::Png,
-            )
-            .expect("in-memory PNG");
-            write_atomic(&partial.join(&file), &bytes)?;
-            cameras.push(CameraRecord {
-                id: format!("{}-{}", r.pod, r.side),
-                pod: r.pod.clone(),
-                side: r.side.into(),
-                file,
-                width: r.width,
-                height: r.height,
-                sensor_timestamp_us: n as u64 * 1_000_000,
-                sequence: n as u32,
-                exposure_us: None,
-            });
-        }
-        mesh::write_mesh(&partial.join("truth.ply"), &mesh)?;
-        let now = utc_stamp(std::time::SystemTime::now());
-        let manifest = Manifest {
-            format: Manifest::FORMAT.into(),
-            version: 1,
-            id: id.clone(),
-            station: rig.name.clone(),
-            subject: Some(subject.into()),
-            started_utc: now.clone(),
-            finished_utc: now,
-            trigger: TriggerRecord {
-                kind: "simulated".into(),
-                sequence: n as u32,
-                box_time_us: None,
-            },
-            cameras,
-        };
-        write_atomic(
-            &partial.join("manifest.json"),
-            &serde_json::to_vec_pretty(&manifest).expect("serialises"),
-        )?;
-        let dir = out.join(&id);
-        std::fs::rename(&partial, &dir).map_err(|e| io(&dir, e))?;
-        dirs.push(dir);
+        let images = crate::synth::rig::render_rig(&rig, &mesh, noise, n as u64)
+            .into_iter()
+            .map(|r| (r.pod, r.side, r.width, r.height, r.pixels))
+            .collect();
+        let truth = mesh::io::ply_bytes(&mesh, mesh::io::PlyEncoding::BinaryLittleEndian);
+        dirs.push(write_simulated_set(
+            out,
+            n,
+            &rig.name,
+            subject,
+            images,
+            &[("truth.ply", truth)],
+        )?);
     }
     Ok(dirs)
+}
+
+/// One rendered camera image: pod, side, width, height, grey pixels.
+type SimImage = (String, &'static str, u32, u32, Vec<u8>);
+
+/// Writes a simulated capture set under `out` as the rig would (images, `extra` files,
+/// the manifest last, the folder renamed into place); returns its folder.
+fn write_simulated_set(
+    out: &Path,
+    n: usize,
+    station: &str,
+    subject: &str,
+    images: Vec<SimImage>,
+    extra: &[(&str, Vec<u8>)],
+) -> Result<PathBuf, JobError> {
+    use crate::rig::capture::{CameraRecord, Manifest, TriggerRecord, utc_stamp};
+    let io = |p: &Path, source| JobError::Io {
+        path: p.display().to_string(),
+        source,
+    };
+    let id = format!("{}-sim{n:03}", utc_stamp(std::time::SystemTime::now()));
+    let partial = out.join(format!(".{id}.partial"));
+    std::fs::create_dir_all(&partial).map_err(|e| io(&partial, e))?;
+    let mut cameras = Vec::new();
+    for (pod, side, width, height, pixels) in images {
+        let file = format!("{pod}-{side}.png");
+        let img = image::GrayImage::from_raw(width, height, pixels).expect("sized");
+        let mut bytes = Vec::new();
+        img.write_to(
+            &mut std::io::Cursor::new(&mut bytes),
+            image::ImageFormat::Png,
+        )
+        .expect("in-memory PNG");
+        write_atomic(&partial.join(&file), &bytes)?;
+        cameras.push(CameraRecord {
+            id: format!("{pod}-{side}"),
+            pod,
+            side: side.into(),
+            file,
+            width,
+            height,
+            sensor_timestamp_us: n as u64 * 1_000_000,
+            sequence: n as u32,
+            exposure_us: None,
+        });
+    }
+    for (name, bytes) in extra {
+        write_atomic(&partial.join(name), bytes)?;
+    }
+    let now = utc_stamp(std::time::SystemTime::now());
+    let manifest = Manifest {
+        format: Manifest::FORMAT.into(),
+        version: 1,
+        id: id.clone(),
+        station: station.into(),
+        subject: Some(subject.into()),
+        started_utc: now.clone(),
+        finished_utc: now,
+        trigger: TriggerRecord {
+            kind: "simulated".into(),
+            sequence: n as u32,
+            box_time_us: None,
+        },
+        cameras,
+    };
+    write_atomic(
+        &partial.join("manifest.json"),
+        &serde_json::to_vec_pretty(&manifest).expect("serialises"),
+    )?;
+    let dir = out.join(&id);
+    std::fs::rename(&partial, &dir).map_err(|e| io(&dir, e))?;
+    Ok(dir)
+}
+
+/// Renders one capture set of a chessboard lying flat on the rig's floor, seen by every
+/// pod, for `calibrate --placement`; the board's origin in the rig frame is written
+/// beside the images (`placement.toml`: `board`, `square`, `origin`).
+pub fn simulate_placement(
+    rig_path: &Path,
+    board: &str,
+    square: f64,
+    noise: f64,
+    out: &Path,
+) -> Result<PathBuf, JobError> {
+    use crate::synth::rig::{Chessboard, RigFile, placement_board, render_chessboard};
+    let (cols, rows) = parse_board(board)?;
+    let rig = RigFile::load(rig_path).map_err(JobError::Usage)?;
+    let cb = Chessboard { cols, rows, square };
+    let (origin, pose) = placement_board(&rig, &cb);
+    let mut images = Vec::new();
+    for pod in rig.pods() {
+        for (right, side) in [(false, "left"), (true, "right")] {
+            let k = if right { pod.right } else { pod.left };
+            let px = render_chessboard(&pod, right, &cb, &pose, noise, 5);
+            images.push((pod.id.clone(), side, k.width, k.height, px));
+        }
+    }
+    let placement = format!(
+        "board = \"{cols}x{rows}\"\nsquare = {square}\norigin = [{}, {}, {}]\n",
+        origin.x, origin.y, origin.z
+    );
+    write_simulated_set(
+        out,
+        0,
+        &rig.name,
+        "placement board",
+        images,
+        &[("placement.toml", placement.into_bytes())],
+    )
+}
+
+/// One pod's pose found by `calibrate --placement`.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct PodPlacement {
+    pub pod: String,
+    /// the left camera's centre in the rig frame (m)
+    pub position: [f64; 3],
+    /// rows: the left camera's axes in the rig frame
+    pub rotation: [[f64; 3]; 3],
+    /// corner reprojection RMS of the left and right camera, pixels
+    pub rms_left: f64,
+    pub rms_right: f64,
+    /// the left camera's pose found from the right camera's view through the pod's
+    /// calibration, against the one from its own view: a check of the calibration
+    pub left_right_mm: f64,
+    pub left_right_deg: f64,
+}
+
+/// Finds every pod's pose in the rig frame from one capture set of a chessboard that
+/// all pods see, and writes
+/// the rig file with the measured `position` and `rotation` of every pod to `out`.
+/// Lenses come from `calibration/<pod>.yml` when given, else from the rig file.
+/// The board lies face up, its long side (the `cols` inner corners) along the rig's x,
+/// and `origin` is where its origin lies in the rig frame: the outer corner of the dark
+/// corner square from which the long side runs along +x with the board's
+/// other side towards -y (see `stereo::calibrate::board_pose` for the board frame).
+///
+/// Example: `conformd calibrate --placement captures/<id> --rig rig.toml --calibration cal
+/// --board 9x6 --square 0.08 --out rig-measured.toml`; see `tests/calibration.rs`.
+pub fn calibrate_placement(
+    capture: &Path,
+    rig_path: &Path,
+    calibration: Option<&Path>,
+    board: &str,
+    square: f64,
+    origin: [f64; 3],
+    out: &Path,
+) -> Result<Vec<PodPlacement>, JobError> {
+    use crate::stereo::calib::Pose;
+    let (cols, rows) = parse_board(board)?;
+    let station = Reconstruction::load(rig_path, calibration)?;
+    let manifest =
+        crate::rig::capture::Manifest::read(capture).map_err(|e| JobError::Usage(e.to_string()))?;
+    let origin = mesh::V3::from(origin);
+    // the board face up: its x along the rig's x, its z (into the board) down
+    let board_axes = nalgebra::Matrix3::from_diagonal(&mesh::V3::new(1.0, -1.0, -1.0));
+    let mut rig = station.rig.clone();
+    let mut found = Vec::new();
+    for (pod, spec) in station.pods.iter().zip(&mut rig.pods) {
+        let mut views = Vec::new();
+        for (side, k) in [("left", &pod.left), ("right", &pod.right)] {
+            let cam = manifest
+                .cameras
+                .iter()
+                .find(|c| c.pod == pod.id && c.side == side)
+                .ok_or_else(|| {
+                    JobError::Usage(format!(
+                        "{}: no {side} image of pod {} in the capture set",
+                        capture.display(),
+                        pod.id
+                    ))
+                })?;
+            let path = capture.join(&cam.file);
+            let named = |what: String| {
+                JobError::Usage(format!("camera {}: {}: {what}", cam.id, path.display()))
+            };
+            let img = image::open(&path)
+                .map_err(|e| named(e.to_string()))?
+                .to_luma8();
+            if img.dimensions() != (k.width, k.height) {
+                return Err(named(format!(
+                    "the image is {}x{}, the calibration is for {}x{}",
+                    img.width(),
+                    img.height(),
+                    k.width,
+                    k.height
+                )));
+            }
+            let view = crate::stereo::calibrate::board_pose(k, img.as_raw(), cols, rows, square)
+                .map_err(|e| named(e))?
+                .ok_or_else(|| {
+                    named(format!(
+                        "the {cols}x{rows} board is not in view; every pod must see the whole board"
+                    ))
+                })?;
+            // board -> camera, and x_board = B (x_rig - origin)
+            let r = view.pose.r * board_axes;
+            views.push((
+                Pose {
+                    r,
+                    t: view.pose.t - r * origin,
+                },
+                view.rms,
+            ));
+        }
+        let ((left, rms_left), (right, rms_right)) = (views[0], views[1]);
+        // the left camera again, from the right one: x_left = R^T (x_right - T)
+        let rt = pod.r.transpose();
+        let via_right = Pose {
+            r: rt * right.r,
+            t: rt * (right.t - pod.t),
+        };
+        let angle = nalgebra::Rotation3::from_matrix_unchecked(left.r * via_right.r.transpose())
+            .angle()
+            .to_degrees();
+        let rotation = [0, 1, 2].map(|i| [0, 1, 2].map(|j| left.r[(i, j)]));
+        let position = left.centre();
+        spec.position = [position.x, position.y, position.z];
+        spec.rotation = Some(rotation);
+        found.push(PodPlacement {
+            pod: pod.id.clone(),
+            position: spec.position,
+            rotation,
+            rms_left,
+            rms_right,
+            left_right_mm: (left.centre() - via_right.centre()).norm() * 1000.0,
+            left_right_deg: angle,
+        });
+    }
+    let text = format!(
+        "# {}: pod poses measured by `conformd calibrate --placement {}`\n{}",
+        rig.name,
+        capture.display(),
+        toml::to_string(&rig).expect("a rig file serialises")
+    );
+    write_atomic(out, text.as_bytes())?;
+    Ok(found)
 }
 
 /// A station's reconstruction set-up: the rig file, its pods with their calibrations

@@ -1,6 +1,7 @@
 //! Stereo calibration of one pod from chessboard image pairs with OpenCV: corners found
 //! and refined to sub-pixel, each camera calibrated, then the pair (R, T); views where the
-//! board is not found in both images are skipped and reported.
+//! board is not found in both images are skipped and reported. Also a pod's pose in the
+//! rig frame from one board placement that every pod sees.
 
 use super::calib::{Intrinsics, Pod, Pose};
 use super::disparity::gray_mat;
@@ -69,13 +70,7 @@ pub fn calibrate(
     id: &str,
 ) -> Result<(Pod, CalibrationReport), String> {
     let run = || -> opencv::Result<Result<(Pod, CalibrationReport), String>> {
-        let object: Vector<Point3f> = (1..=rows)
-            .flat_map(|j| {
-                (1..=cols).map(move |i| {
-                    Point3f::new((i as f64 * square) as f32, (j as f64 * square) as f32, 0.0)
-                })
-            })
-            .collect();
+        let object = board_points(cols, rows, square);
         let (mut obj, mut left, mut right) = (
             Vector::<Vector<Point3f>>::new(),
             Vector::<Vector<Point2f>>::new(),
@@ -312,4 +307,145 @@ pub fn read_yaml(
         Ok(Ok((pod, origin)))
     };
     run().map_err(|e| format!("{name}: OpenCV: {e}"))?
+}
+
+/// Where one camera sees a flat chessboard ([`board_pose`]).
+#[derive(Debug, Clone, Copy)]
+pub struct BoardView {
+    /// board frame to camera: `x_cam = R x_board + t`
+    pub pose: Pose,
+    /// RMS reprojection error of the corners, pixels
+    pub rms: f64,
+    /// OpenCV's corner order was read another way round to match the board
+    pub reordered: bool,
+}
+
+/// The board's inner corners in its own frame, in OpenCV's order (rows of `cols`):
+/// `(i * square, j * square, 0)` for j in 1..=rows, i in 1..=cols. The board frame's
+/// origin is the outer corner of the dark square before the first inner corner, x runs
+/// along the `cols` corners, and z points into the board (away from a camera that sees
+/// its printed face), as in OpenCV.
+fn board_points(cols: u32, rows: u32, square: f64) -> Vector<Point3f> {
+    (1..=rows)
+        .flat_map(|j| {
+            (1..=cols).map(move |i| {
+                Point3f::new((i as f64 * square) as f32, (j as f64 * square) as f32, 0.0)
+            })
+        })
+        .collect()
+}
+
+/// The pose of a flat chessboard seen by one camera of intrinsics `k` in an 8-bit grey
+/// image (`k.width` x `k.height`): OpenCV's corners refined to sub-pixel, then
+/// `solvePnP`. Seen from its far end, a board comes back with its corners listed from the
+/// other end; the colouring (the origin square is dark) tells, so the board needs one odd
+/// and one even side (`cols + rows` odd). `Ok(None)`: the board is not in the image, or
+/// no reading of its corners matches its colouring.
+pub fn board_pose(
+    k: &Intrinsics,
+    pixels: &[u8],
+    cols: u32,
+    rows: u32,
+    square: f64,
+) -> Result<Option<BoardView>, String> {
+    if (cols + rows) % 2 == 0 {
+        return Err(format!(
+            "a {cols}x{rows} board looks the same from both ends; placement needs one odd and one even count of inner corners (e.g. 9x6)"
+        ));
+    }
+    let run = || -> opencv::Result<Option<BoardView>> {
+        let img = gray_mat(pixels, k.width, k.height)?;
+        let Some(found) = corners(&img, cols, rows)? else {
+            return Ok(None);
+        };
+        let object = board_points(cols, rows, square);
+        let m = Mat::from_slice_2d(&[[k.fx, 0.0, k.cx], [0.0, k.fy, k.cy], [0.0, 0.0, 1.0]])?;
+        let d = Mat::from_slice(&k.dist)?.try_clone()?;
+        let solve = |img_pts: &Vector<Point2f>| -> opencv::Result<(Mat, Mat, f64)> {
+            let (mut rv, mut tv) = (Mat::default(), Mat::default());
+            calib3d::solve_pnp(
+                &object,
+                img_pts,
+                &m,
+                &d,
+                &mut rv,
+                &mut tv,
+                false,
+                calib3d::SOLVEPNP_ITERATIVE,
+            )?;
+            let mut proj = Vector::<Point2f>::new();
+            calib3d::project_points_def(&object, &rv, &tv, &m, &d, &mut proj)?;
+            let e: f64 = proj
+                .iter()
+                .zip(img_pts.iter())
+                .map(|(a, b)| ((a.x - b.x) as f64).powi(2) + ((a.y - b.y) as f64).powi(2))
+                .sum();
+            Ok((rv, tv, (e / proj.len() as f64).sqrt()))
+        };
+        // mean grey of the squares that should be dark, and of those that should be light
+        let shades = |rv: &Mat, tv: &Mat| -> opencv::Result<(f64, f64)> {
+            let centres: Vector<Point3f> = (0..=rows)
+                .flat_map(|b| {
+                    (0..=cols).map(move |a| {
+                        Point3f::new(
+                            ((a as f64 + 0.5) * square) as f32,
+                            ((b as f64 + 0.5) * square) as f32,
+                            0.0,
+                        )
+                    })
+                })
+                .collect();
+            let mut proj = Vector::<Point2f>::new();
+            calib3d::project_points_def(&centres, rv, tv, &m, &d, &mut proj)?;
+            let (mut sum, mut n) = ([0.0; 2], [0usize; 2]);
+            for (idx, p) in proj.iter().enumerate() {
+                let (a, b) = (idx as u32 % (cols + 1), idx as u32 / (cols + 1));
+                let (x, y) = (p.x.round() as i64, p.y.round() as i64);
+                if x < 0 || y < 0 || x >= k.width as i64 || y >= k.height as i64 {
+                    continue;
+                }
+                let parity = ((a + b) % 2) as usize;
+                sum[parity] += pixels[y as usize * k.width as usize + x as usize] as f64;
+                n[parity] += 1;
+            }
+            Ok((sum[0] / n[0].max(1) as f64, sum[1] / n[1].max(1) as f64))
+        };
+        // OpenCV lists the corners row by row, but which end and which side it starts
+        // from follows the image; of the four readings of the grid, the board is the one
+        // seen from its printed face (z away from the camera) with dark squares where
+        // they belong
+        let (c, r) = (cols as usize, rows as usize);
+        let reading = |flip_rows: bool, flip_cols: bool| -> Vector<Point2f> {
+            (0..r)
+                .flat_map(|j| (0..c).map(move |i| (j, i)))
+                .map(|(j, i)| {
+                    let jj = if flip_rows { r - 1 - j } else { j };
+                    let ii = if flip_cols { c - 1 - i } else { i };
+                    found.get(jj * c + ii).expect("in the grid")
+                })
+                .collect()
+        };
+        let mut best: Option<BoardView> = None;
+        for (flip_rows, flip_cols) in [(false, false), (true, true), (true, false), (false, true)] {
+            let (rv, tv, rms) = solve(&reading(flip_rows, flip_cols))?;
+            let mut rm = Mat::default();
+            calib3d::rodrigues_def(&rv, &mut rm)?;
+            let rot = nalgebra::Matrix3::from_row_slice(rm.data_typed::<f64>()?);
+            let t = tv.data_typed::<f64>()?;
+            let t = V3::new(t[0], t[1], t[2]);
+            let (dark, light) = shades(&rv, &tv)?;
+            if rot.column(2).dot(&t) <= 0.0 || dark >= light {
+                continue;
+            }
+            if best.is_none_or(|b| rms < b.rms) {
+                best = Some(BoardView {
+                    pose: Pose { r: rot, t },
+                    rms,
+                    reordered: flip_rows || flip_cols,
+                });
+            }
+        }
+        Ok(best)
+    };
+    run().map_err(|e| format!("OpenCV: {e}"))
 }

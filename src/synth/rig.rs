@@ -34,6 +34,14 @@ pub struct PodSpec {
     pub look_at: [f64; 3],
     #[serde(default = "up")]
     pub up: [f64; 3],
+    /// the left camera's measured orientation (`calibrate --placement`), rows: its x, y, z
+    /// axes in the rig frame; replaces look_at/up for the camera (the projector still
+    /// aims at look_at)
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rotation: Option<[[f64; 3]; 3]>,
+    /// a speckle projector lights the subject (textureless skin matches poorly without)
+    #[serde(default = "yes")]
+    pub projector: bool,
     /// size of a projected speckle, in image pixels at the look-at distance
     #[serde(default = "speckle")]
     pub speckle_px: f64,
@@ -44,6 +52,9 @@ fn up() -> [f64; 3] {
 }
 fn speckle() -> f64 {
     3.0
+}
+fn yes() -> bool {
+    true
 }
 
 /// A rig file (`config/rig.example.toml`).
@@ -64,6 +75,17 @@ impl RigFile {
             return Err(format!("{}: no [[pods]]", path.display()));
         }
         for p in &rig.pods {
+            if let Some(rows) = p.rotation {
+                let r = Matrix3::from_fn(|i, j| rows[i][j]);
+                if (r * r.transpose() - Matrix3::identity()).norm() > 1e-6 || r.determinant() < 0.0
+                {
+                    return Err(format!(
+                        "{}: pod {}: rotation is not a rotation matrix (orthonormal rows, determinant 1)",
+                        path.display(),
+                        p.id
+                    ));
+                }
+            }
             if !(p.baseline > 0.0 && p.focal_px > 0.0 && p.image[0] >= 16 && p.image[1] >= 16) {
                 return Err(format!(
                     "{}: pod {}: baseline, focal_px and image must be positive",
@@ -91,8 +113,18 @@ impl RigFile {
                     cy,
                     dist: s.distortion,
                 };
-                let left_pose =
-                    Pose::look_at(V3::from(s.position), V3::from(s.look_at), V3::from(s.up));
+                let left_pose = match s.rotation {
+                    Some(rows) => {
+                        let r = Matrix3::from_fn(|i, j| rows[i][j]);
+                        Pose {
+                            r,
+                            t: -(r * V3::from(s.position)),
+                        }
+                    }
+                    None => {
+                        Pose::look_at(V3::from(s.position), V3::from(s.look_at), V3::from(s.up))
+                    }
+                };
                 Pod {
                     id: s.id.clone(),
                     left: k,
@@ -237,7 +269,10 @@ pub fn render_camera(
                 let pc = proj.to_camera(p);
                 let to_proj = (centre - p).normalize();
                 let lit = n.dot(&to_proj).abs();
-                let s = if pc.z > 0.0 {
+                let s = if !spec.projector {
+                    // bare skin: a faint, smooth texture of its own
+                    0.5 + 0.1 * (p.x * 40.0).sin() * (p.y * 37.0).cos()
+                } else if pc.z > 0.0 {
                     speckle_value(pc.x / pc.z * scale, pc.y / pc.z * scale, pattern_seed)
                 } else {
                     0.0
@@ -389,4 +424,29 @@ pub fn chessboard_poses(
             Pose { r, t }
         })
         .collect()
+}
+
+/// Where `simulate --placement` lays the board: face up on the floor (z = 0), centred
+/// under the working volume (or the rig origin), its x axis along the rig's x; the board
+/// frame's z points into the board, so its y runs along the rig's -y. Returns the board's
+/// origin in the rig frame and its pose (`x_board = B (x_rig - origin)`, B = diag(1, -1, -1)).
+pub fn placement_board(rig: &RigFile, cb: &Chessboard) -> (V3, Pose) {
+    let centre = rig
+        .working_volume
+        .map(|[lo, hi]| V3::new((lo[0] + hi[0]) / 2.0, (lo[1] + hi[1]) / 2.0, 0.0))
+        .unwrap_or_else(V3::zeros);
+    let origin = centre
+        + V3::new(
+            -((cb.cols + 1) as f64) * cb.square / 2.0,
+            (cb.rows + 1) as f64 * cb.square / 2.0,
+            0.0,
+        );
+    let b = Matrix3::from_diagonal(&V3::new(1.0, -1.0, -1.0));
+    (
+        origin,
+        Pose {
+            r: b,
+            t: -(b * origin),
+        },
+    )
 }
