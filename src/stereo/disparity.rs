@@ -24,6 +24,12 @@ pub struct SgbmOptions {
     /// pixels whose 5x5 neighbourhood varies less than this (grey levels, standard
     /// deviation) carry no texture to match: they are left out, not guessed
     pub min_contrast: f64,
+    /// valid pixels this close (pixels) to an unmatched pixel or to a disparity jump of
+    /// over `max_jump` are dropped: block matching smears the nearer surface across such
+    /// edges ("edge fattening"); 0 keeps them
+    pub edge_margin: i32,
+    /// disparity step (pixels) within the margin's window taken as a jump between surfaces
+    pub max_jump: f64,
 }
 
 impl Default for SgbmOptions {
@@ -40,6 +46,8 @@ impl Default for SgbmOptions {
             disp12_max_diff: 1,
             pre_filter_cap: 31,
             min_contrast: 6.0,
+            edge_margin: 2,
+            max_jump: 2.0,
         }
     }
 }

@@ -430,8 +430,52 @@ pub fn pod_grid(
     let anchor = core::Point::new(-1, -1);
     imgproc::blur(&lf, &mut mean, k, anchor, core::BORDER_REFLECT)?;
     imgproc::blur(&sq, &mut mean_sq, k, anchor, core::BORDER_REFLECT)?;
+    // edges: the spread of disparity (unmatched = 0) over the margin's window
+    let spread = if o.edge_margin > 0 {
+        let side = 2 * o.edge_margin + 1;
+        let kernel =
+            imgproc::get_structuring_element(imgproc::MORPH_RECT, Size::new(side, side), anchor)?;
+        let mut d0 = Mat::default();
+        imgproc::threshold(
+            &dispf,
+            &mut d0,
+            o.min_disparity as f64,
+            0.0,
+            imgproc::THRESH_TOZERO,
+        )?;
+        let (mut hi, mut lo) = (Mat::default(), Mat::default());
+        let border = imgproc::morphology_default_border_value()?;
+        imgproc::dilate(
+            &d0,
+            &mut hi,
+            &kernel,
+            anchor,
+            1,
+            core::BORDER_CONSTANT,
+            border,
+        )?;
+        imgproc::erode(
+            &d0,
+            &mut lo,
+            &kernel,
+            anchor,
+            1,
+            core::BORDER_REPLICATE,
+            border,
+        )?;
+        let mut spread = Mat::default();
+        core::subtract(&hi, &lo, &mut spread, &core::no_array(), -1)?;
+        Some(spread)
+    } else {
+        None
+    };
     // from here on the work is conformd's own
     let own_start = Instant::now();
+    let spread = match &spread {
+        Some(m) => m.data_typed::<f32>()?,
+        None => &[],
+    };
+    let max_jump = o.max_jump as f32;
     let (m, m2) = (mean.data_typed::<f32>()?, mean_sq.data_typed::<f32>()?);
     let min_var = (o.min_contrast * o.min_contrast) as f32;
     let (rot, shift) = (rectifier.rot, rectifier.shift);
@@ -442,7 +486,11 @@ pub fn pod_grid(
         .enumerate()
         .map(|(i, p)| {
             let d = px.values[i];
-            if !d.is_finite() || d <= o.min_disparity as f32 || m2[i] - m[i] * m[i] < min_var {
+            if !d.is_finite()
+                || d <= o.min_disparity as f32
+                || m2[i] - m[i] * m[i] < min_var
+                || spread.get(i).is_some_and(|s| *s > max_jump)
+            {
                 return invalid;
             }
             let c = V3::new(p[0] as f64, p[1] as f64, p[2] as f64);

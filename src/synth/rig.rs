@@ -271,7 +271,7 @@ pub fn render_camera(
                 let lit = n.dot(&to_proj).abs();
                 let s = if !spec.projector {
                     // bare skin: a faint, smooth texture of its own
-                    0.5 + 0.1 * (p.x * 40.0).sin() * (p.y * 37.0).cos()
+                    0.5 + 0.02 * (p.x * 40.0).sin() * (p.y * 37.0).cos()
                 } else if pc.z > 0.0 {
                     speckle_value(pc.x / pc.z * scale, pc.y / pc.z * scale, pattern_seed)
                 } else {
