@@ -535,3 +535,121 @@ fn example_station_config_loads() {
     assert_eq!(src.generic, Some(conformd::synth::templates::Kind::Pig));
     assert_eq!(src.vertices, Some(10_000));
 }
+
+/// `simulate --placement` then `calibrate --placement` through the binary, on a small
+/// rig: every pod placed near its true pose, the measured rig file loads with rotations;
+/// a malformed `--board-origin` or a missing `--rig` is refused in one line.
+#[test]
+fn placement_through_the_cli() {
+    use conformd::synth::rig::RigFile;
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let mut rig: RigFile = toml::from_str(
+        &std::fs::read_to_string(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/config/rig.example.toml"
+        ))
+        .unwrap(),
+    )
+    .unwrap();
+    for p in &mut rig.pods {
+        p.image = [800, 600];
+        p.focal_px = 690.0;
+        p.distortion = [0.0; 5];
+    }
+    std::fs::write(d.join("rig.toml"), toml::to_string(&rig).unwrap()).unwrap();
+    let out = conformd(
+        &[
+            "simulate",
+            "--rig",
+            "rig.toml",
+            "--chessboard",
+            "9x6",
+            "--square",
+            "0.08",
+            "--placement",
+            "--out",
+            "place",
+        ],
+        d,
+    );
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let set = std::fs::read_dir(d.join("place"))
+        .unwrap()
+        .next()
+        .unwrap()
+        .unwrap()
+        .path();
+    let placement: toml::Table =
+        toml::from_str(&std::fs::read_to_string(set.join("placement.toml")).unwrap()).unwrap();
+    let origin: Vec<String> = placement["origin"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.to_string())
+        .collect();
+    let origin = format!("--board-origin={}", origin.join(","));
+    let set = set.to_str().unwrap();
+    let args = [
+        "calibrate",
+        "--placement",
+        set,
+        "--rig",
+        "rig.toml",
+        "--board",
+        "9x6",
+        "--square",
+        "0.08",
+    ];
+    let out = conformd(
+        &[&args[..], &[origin.as_str(), "--out", "measured.toml"]].concat(),
+        d,
+    );
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        text.contains("pod pod1: left camera at") && text.contains("pod pod2"),
+        "{text}"
+    );
+    let measured = RigFile::load(&d.join("measured.toml")).unwrap();
+    for (m, t) in measured.pods().iter().zip(rig.pods()) {
+        let off = (m.left_pose.centre() - t.left_pose.centre()).norm();
+        assert!(off < 0.01, "pod {} placed {off:.4} m off", m.id);
+    }
+    assert!(measured.pods.iter().all(|p| p.rotation.is_some()));
+    // one clear line for a bad origin, and --rig is required
+    let out = conformd(
+        &[&args[..], &["--board-origin=1,2", "--out", "x.toml"]].concat(),
+        d,
+    );
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && err.contains("'1,2': expected x,y,z"),
+        "{err}"
+    );
+    let out = conformd(
+        &[
+            "calibrate",
+            "--placement",
+            set,
+            "--board",
+            "9x6",
+            "--square",
+            "0.08",
+            "--out",
+            "x.toml",
+        ],
+        d,
+    );
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("--rig"), "{err}");
+    assert!(!d.join("x.toml").exists());
+}
