@@ -84,7 +84,8 @@ fn both_cameras_see_the_same_speckle_where_the_calibration_says() {
                 + g(x0, y0 + 1) * (1.0 - fx) * fy
                 + g(x0 + 1, y0 + 1) * fx * fy
         };
-        let (qx, qy) = (q.x - 0.5, q.y - 0.5);
+        // pixel (x, y) is centred on image point (x, y), as in OpenCV
+        let (qx, qy) = (q.x, q.y);
         if let (Some(a), true) = (
             patch(&l.pixels, i % w, i / w),
             qx > 4.0 && qy > 4.0 && qx + 5.0 < w as f64 && qy + 5.0 < h as f64,

@@ -1,9 +1,11 @@
 //! Disparity by OpenCV's semi-global block matching on a rectified pair, with tuned
 //! defaults (P1/P2 from the block size, uniqueness, speckle filtering, OpenCV's
-//! left-right check); written as PFM (Middlebury convention, invalid = inf).
+//! left-right check), then a sub-pixel refinement; written as PFM (Middlebury
+//! convention, invalid = inf).
 
 use opencv::calib3d::{StereoSGBM, StereoSGBM_MODE_SGBM_3WAY};
-use opencv::core::{CV_8UC1, Mat};
+use opencv::core::{self, CV_8UC1, CV_32F, Mat, Point, Size};
+use opencv::imgproc;
 use opencv::prelude::*;
 
 /// SGBM settings; `p1`/`p2` default to 8 and 32 x block size squared (one channel).
@@ -30,6 +32,10 @@ pub struct SgbmOptions {
     pub edge_margin: i32,
     /// disparity step (pixels) within the margin's window taken as a jump between surfaces
     pub max_jump: f64,
+    /// sub-pixel refinement after SGBM (see [`refine_subpixel`]): Gauss-Newton steps, and
+    /// the window (pixels, odd) they compare; 0 steps keeps SGBM's own interpolation
+    pub subpixel_steps: u32,
+    pub subpixel_window: i32,
 }
 
 impl Default for SgbmOptions {
@@ -48,6 +54,8 @@ impl Default for SgbmOptions {
             min_contrast: 6.0,
             edge_margin: 2,
             max_jump: 2.0,
+            subpixel_steps: 1,
+            subpixel_window: 7,
         }
     }
 }
@@ -64,6 +72,12 @@ impl SgbmOptions {
             return Err(format!(
                 "block_size must be odd, 1 to 21, got {}",
                 self.block_size
+            ));
+        }
+        if self.subpixel_window < 3 || self.subpixel_window % 2 == 0 {
+            return Err(format!(
+                "subpixel_window must be odd, 3 or more, got {}",
+                self.subpixel_window
             ));
         }
         Ok(())
@@ -144,7 +158,8 @@ pub fn to_pixels(disp: &Mat, min_disparity: i32) -> opencv::Result<Disparity> {
     })
 }
 
-/// Disparity of a rectified pair given as grey pixels.
+/// Disparity of a rectified pair given as grey pixels, refined to sub-pixel precision
+/// when `o.subpixel_steps` > 0.
 pub fn disparity(
     left: &[u8],
     right: &[u8],
@@ -154,12 +169,145 @@ pub fn disparity(
 ) -> Result<Disparity, String> {
     o.validate()?;
     let run = || -> opencv::Result<Disparity> {
-        let d = disparity_mats(
-            &gray_mat(left, width, height)?,
-            &gray_mat(right, width, height)?,
-            o,
-        )?;
-        to_pixels(&d, o.min_disparity)
+        let (l, r) = (
+            gray_mat(left, width, height)?,
+            gray_mat(right, width, height)?,
+        );
+        let d = disparity_mats(&l, &r, o)?;
+        let mut px = to_pixels(&d, o.min_disparity)?;
+        if o.subpixel_steps > 0 {
+            let mut f = Mat::default();
+            d.convert_to(&mut f, CV_32F, 1.0 / 16.0, 0.0)?;
+            let grids = pixel_grids(width as i32, height as i32)?;
+            let refined = refine_subpixel(&l, &r, &f, &grids, o)?;
+            for (v, r) in px.values.iter_mut().zip(refined.data_typed::<f32>()?) {
+                if v.is_finite() {
+                    // a pixel that moved over a pixel in all was not refined but lost
+                    *v = if (r - *v).abs() <= 1.0 {
+                        *r
+                    } else {
+                        f32::INFINITY
+                    };
+                }
+            }
+        }
+        Ok(px)
     };
     run().map_err(|e| format!("OpenCV: {e}"))
+}
+
+/// Each pixel's x and y coordinate as two CV_32F images of `width` x `height`.
+pub fn pixel_grids(width: i32, height: i32) -> opencv::Result<(Mat, Mat)> {
+    let xs: Vec<f32> = (0..height)
+        .flat_map(|_| (0..width).map(|x| x as f32))
+        .collect();
+    let ys: Vec<f32> = (0..height)
+        .flat_map(|y| (0..width).map(move |_| y as f32))
+        .collect();
+    Ok((
+        Mat::new_rows_cols_with_data(height, width, &xs)?.try_clone()?,
+        Mat::new_rows_cols_with_data(height, width, &ys)?.try_clone()?,
+    ))
+}
+
+/// Refines a disparity map to sub-pixel precision: SGBM's parabola fit between whole-pixel
+/// costs leans towards whole pixels ("pixel locking"), which shows as ripples of a few mm
+/// on a scanned surface. Each step warps the right image by the disparity and takes the
+/// Gauss-Newton step that best aligns it with the left image over a window, with the
+/// window's mean brightness removed (one-dimensional Lucas-Kanade); every operation is an
+/// OpenCV call over the whole image.
+///
+/// In: rectified 8-bit left and right images, disparity in pixels (CV_32F, same size).
+/// Out: the refined disparity (CV_32F); pixels the caller takes as unmatched stay so.
+/// `grids`: each pixel's x and y coordinate ([`pixel_grids`]), kept by callers that
+/// refine many maps of one size.
+pub fn refine_subpixel(
+    left: &Mat,
+    right: &Mat,
+    disp: &Mat,
+    grids: &(Mat, Mat),
+    o: &SgbmOptions,
+) -> opencv::Result<Mat> {
+    let (w, h) = (disp.cols(), disp.rows());
+    let (xg, yg) = grids;
+    let (mut l, mut r, mut g) = (Mat::default(), Mat::default(), Mat::default());
+    left.convert_to(&mut l, CV_32F, 1.0, 0.0)?;
+    right.convert_to(&mut r, CV_32F, 1.0, 0.0)?;
+    imgproc::sobel(
+        &r,
+        &mut g,
+        CV_32F,
+        1,
+        0,
+        3,
+        0.125,
+        0.0,
+        core::BORDER_REPLICATE,
+    )?;
+    let win = Size::new(o.subpixel_window, o.subpixel_window);
+    let mean = |m: &Mat| -> opencv::Result<Mat> {
+        let mut out = Mat::default();
+        imgproc::box_filter(
+            m,
+            &mut out,
+            -1,
+            win,
+            Point::new(-1, -1),
+            true,
+            core::BORDER_REFLECT,
+        )?;
+        Ok(out)
+    };
+    let mul = |a: &Mat, b: &Mat| -> opencv::Result<Mat> {
+        let mut out = Mat::default();
+        core::multiply(a, b, &mut out, 1.0, -1)?;
+        Ok(out)
+    };
+    let sub = |a: &Mat, b: &Mat| -> opencv::Result<Mat> {
+        let mut out = Mat::default();
+        core::subtract(a, b, &mut out, &core::no_array(), -1)?;
+        Ok(out)
+    };
+    let warp = |m: &Mat, mapx: &Mat| -> opencv::Result<Mat> {
+        let mut out = Mat::default();
+        imgproc::remap(
+            m,
+            &mut out,
+            mapx,
+            yg,
+            imgproc::INTER_LINEAR,
+            core::BORDER_REPLICATE,
+            core::Scalar::all(0.0),
+        )?;
+        Ok(out)
+    };
+    let mut d = disp.try_clone()?;
+    for _ in 0..o.subpixel_steps {
+        let mapx = sub(xg, &d)?;
+        let (rw, gw) = (warp(&r, &mapx)?, warp(&g, &mapx)?);
+        let e = sub(&rw, &l)?;
+        let (me, mg) = (mean(&e)?, mean(&gw)?);
+        // cov(e, g) / var(g) over the window
+        let num = sub(&mean(&mul(&e, &gw)?)?, &mul(&me, &mg)?)?;
+        let den = sub(&mean(&mul(&gw, &gw)?)?, &mul(&mg, &mg)?)?;
+        let mut step = Mat::default();
+        core::divide2(&num, &den, &mut step, 1.0, -1)?;
+        // a step of over half a pixel is not a refinement: bounded, and the caller drops
+        // pixels that moved more than a pixel in all
+        let (mut hi, mut lo) = (Mat::default(), Mat::default());
+        core::min(
+            &step,
+            &Mat::new_rows_cols_with_default(h, w, core::CV_32F, core::Scalar::all(0.5))?,
+            &mut hi,
+        )?;
+        core::max(
+            &hi,
+            &Mat::new_rows_cols_with_default(h, w, core::CV_32F, core::Scalar::all(-0.5))?,
+            &mut lo,
+        )?;
+        let mut next = Mat::default();
+        core::add(&d, &lo, &mut next, &core::no_array(), -1)?;
+        d = next;
+    }
+    Ok(d)
 }

@@ -5,13 +5,16 @@
 //! depth discontinuities into one mesh with holes.
 
 use super::calib::Pod;
-use super::disparity::{SgbmOptions, disparity_mats, gray_mat, to_pixels};
+use super::disparity::{
+    SgbmOptions, disparity_mats, gray_mat, pixel_grids, refine_subpixel, to_pixels,
+};
 use crate::mesh::{Mesh, V3, keep_triangles, topology};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use opencv::calib3d;
 use opencv::core::{self, Mat, Rect, Size};
 use opencv::imgproc;
 use opencv::prelude::*;
+use rayon::prelude::*;
 use std::collections::HashMap;
 use std::num::NonZero;
 use std::time::Instant;
@@ -185,6 +188,8 @@ pub struct PodRectifier {
     shift: V3,
     /// focal length of the rectified cameras, pixels
     focal: f64,
+    /// each pixel's x and y, for the sub-pixel refinement's warps
+    grids: (Mat, Mat),
 }
 
 impl PodRectifier {
@@ -220,6 +225,7 @@ impl PodRectifier {
             focal,
             rect,
             maps,
+            grids: pixel_grids(size.width, size.height)?,
         })
     }
 
@@ -417,8 +423,13 @@ pub fn pod_grid(
     report.valid_disparity_share = px.valid_share();
     let mut dispf = Mat::default();
     disp.convert_to(&mut dispf, core::CV_32F, 1.0 / 16.0, 0.0)?;
+    let refined = if o.subpixel_steps > 0 {
+        refine_subpixel(&lr, &rr, &dispf, &rectifier.grids, o)?
+    } else {
+        dispf.try_clone()?
+    };
     let mut xyz = Mat::default();
-    calib3d::reproject_image_to_3d(&dispf, &mut xyz, &rectifier.rect.q, true, core::CV_32F)?;
+    calib3d::reproject_image_to_3d(&refined, &mut xyz, &rectifier.rect.q, true, core::CV_32F)?;
     let pts = xyz.data_typed::<core::Vec3f>()?;
     // texture mask: local standard deviation of the rectified left image
     let mut lf = Mat::default();
@@ -476,6 +487,7 @@ pub fn pod_grid(
         None => &[],
     };
     let max_jump = o.max_jump as f32;
+    let (before, after) = (dispf.data_typed::<f32>()?, refined.data_typed::<f32>()?);
     let (m, m2) = (mean.data_typed::<f32>()?, mean_sq.data_typed::<f32>()?);
     let min_var = (o.min_contrast * o.min_contrast) as f32;
     let (rot, shift) = (rectifier.rot, rectifier.shift);
@@ -490,6 +502,7 @@ pub fn pod_grid(
                 || d <= o.min_disparity as f32
                 || m2[i] - m[i] * m[i] < min_var
                 || spread.get(i).is_some_and(|s| *s > max_jump)
+                || (after[i] - before[i]).abs() > 1.0
             {
                 return invalid;
             }
@@ -651,7 +664,7 @@ pub fn fuse(points: Vec<(V3, V3)>, o: &ReconstructOptions, report: &mut Reconstr
         let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&arr);
         let k = NonZero::new(o.outlier_k + 1).unwrap();
         let mean_d: Vec<f64> = arr
-            .iter()
+            .par_iter()
             .map(|q| {
                 tree.nearest_n::<SquaredEuclidean>(q, k)
                     .iter()
@@ -682,7 +695,7 @@ pub fn fuse(points: Vec<(V3, V3)>, o: &ReconstructOptions, report: &mut Reconstr
     if arr.len() >= 13 {
         let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&arr);
         let normals = pts
-            .iter()
+            .par_iter()
             .map(|(p, cam)| {
                 let nb =
                     tree.nearest_n::<SquaredEuclidean>(&[p.x, p.y, p.z], NonZero::new(12).unwrap());

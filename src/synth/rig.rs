@@ -242,47 +242,64 @@ pub fn render_camera(
     let proj = Pose::look_at(centre, V3::from(spec.look_at), V3::from(spec.up));
     let scale = spec.focal_px / spec.speckle_px;
     let pattern_seed = seed_of(&pod.id);
-    // per output pixel: the surface point it sees and that point's triangle
-    let seen: Vec<Option<(V3, u32)>> = (0..w * h)
+    // the surface point a ray through image point (u, v) meets, and its triangle: the
+    // triangle from the z-buffer, the point where the ray crosses that triangle's plane
+    let rt = pose.r.transpose();
+    let surface_at = |u: f64, v: f64| -> Option<(V3, u32)> {
+        let n = k.undistort(Vector2::new((u - k.cx) / k.fx, (v - k.cy) / k.fy));
+        let (x, y) = (k.fx * n.x + k.cx + mw as f64, k.fy * n.y + k.cy + mh as f64);
+        if x < 0.0 || y < 0.0 || x >= cw as f64 || y >= ch as f64 {
+            return None;
+        }
+        let (t, _, _) = hit[y as usize * cw + x as usize]?;
+        let [a, b, c] = subject.triangles[t as usize].map(|i| cam[i as usize]);
+        let normal = (b - a).cross(&(c - a));
+        let dir = V3::new(n.x, n.y, 1.0);
+        let s = normal.dot(&a) / normal.dot(&dir);
+        (s.is_finite() && s > 0.0).then(|| (rt * (dir * s - pose.t), t))
+    };
+    let value = |p: &V3, t: u32| -> f64 {
+        let n = subject.face_normal_scaled(t as usize).normalize();
+        let pc = proj.to_camera(p);
+        let lit = n.dot(&(centre - p).normalize()).abs();
+        let s = if !spec.projector {
+            // bare skin: a faint, smooth texture of its own
+            0.5 + 0.02 * (p.x * 40.0).sin() * (p.y * 37.0).cos()
+        } else if pc.z > 0.0 {
+            speckle_value(pc.x / pc.z * scale, pc.y / pc.z * scale, pattern_seed)
+        } else {
+            0.0
+        };
+        25.0 + 200.0 * lit * (0.25 + 0.75 * s)
+    };
+    // per output pixel (OpenCV's convention: pixel (x, y) is centred on image point
+    // (x, y)): the surface point at its centre, and its grey level averaged over 2x2
+    // samples, as a sensor integrates light over a pixel (point samples of a sharp
+    // speckle alias, which no camera shows)
+    let rendered: Vec<(Option<V3>, f64)> = (0..w * h)
         .into_par_iter()
         .map(|i| {
-            let (u, v) = ((i % w) as f64 + 0.5, (i / w) as f64 + 0.5);
-            let n = k.undistort(Vector2::new((u - k.cx) / k.fx, (v - k.cy) / k.fy));
-            let (x, y) = (k.fx * n.x + k.cx + mw as f64, k.fy * n.y + k.cy + mh as f64);
-            if x < 0.0 || y < 0.0 || x >= cw as f64 || y >= ch as f64 {
-                return None;
-            }
-            let (t, b0, b1) = hit[y as usize * cw + x as usize]?;
-            let [ia, ib, ic] = subject.triangles[t as usize].map(|i| subject.vertices[i as usize]);
-            Some((ia * b0 + ib * b1 + ic * (1.0 - b0 - b1), t))
+            let (u, v) = ((i % w) as f64, (i / w) as f64);
+            let truth = surface_at(u, v).map(|(p, _)| p);
+            let grey = [(-0.25, -0.25), (0.25, -0.25), (-0.25, 0.25), (0.25, 0.25)]
+                .iter()
+                .map(|(du, dv)| match surface_at(u + du, v + dv) {
+                    Some((p, t)) => value(&p, t),
+                    None => 12.0,
+                })
+                .sum::<f64>()
+                / 4.0;
+            (truth, grey)
         })
         .collect();
     let mut rng =
         ChaCha8Rng::seed_from_u64(seed ^ if right { 0x5a5a } else { 0xa5a5 } ^ pattern_seed);
     let gauss = Normal::new(0.0, noise.max(0.0)).expect("valid sigma");
-    let mut pixels = Vec::with_capacity(w * h);
-    for s in &seen {
-        let value = match s {
-            None => 12.0,
-            Some((p, t)) => {
-                let n = subject.face_normal_scaled(*t as usize).normalize();
-                let pc = proj.to_camera(p);
-                let to_proj = (centre - p).normalize();
-                let lit = n.dot(&to_proj).abs();
-                let s = if !spec.projector {
-                    // bare skin: a faint, smooth texture of its own
-                    0.5 + 0.02 * (p.x * 40.0).sin() * (p.y * 37.0).cos()
-                } else if pc.z > 0.0 {
-                    speckle_value(pc.x / pc.z * scale, pc.y / pc.z * scale, pattern_seed)
-                } else {
-                    0.0
-                };
-                25.0 + 200.0 * lit * (0.25 + 0.75 * s)
-            }
-        };
-        pixels.push((value + gauss.sample(&mut rng)).round().clamp(0.0, 255.0) as u8);
-    }
-    let points = seen.into_iter().map(|s| s.map(|(p, _)| p)).collect();
+    let pixels = rendered
+        .iter()
+        .map(|(_, g)| (g + gauss.sample(&mut rng)).round().clamp(0.0, 255.0) as u8)
+        .collect();
+    let points = rendered.into_iter().map(|(p, _)| p).collect();
     Rendered {
         pod: pod.id.clone(),
         side: if right { "right" } else { "left" },
@@ -372,8 +389,9 @@ pub fn render_chessboard(
     let vals: Vec<f64> = (0..w * h)
         .into_par_iter()
         .map(|i| {
+            // pixel (x, y) centred on image point (x, y), as in OpenCV
             let (u, v) = ((i % w) as f64, (i / w) as f64);
-            [(0.25, 0.25), (0.75, 0.25), (0.25, 0.75), (0.75, 0.75)]
+            [(-0.25, -0.25), (0.25, -0.25), (-0.25, 0.25), (0.25, 0.25)]
                 .iter()
                 .map(|(du, dv)| shade(u + du, v + dv))
                 .sum::<f64>()
