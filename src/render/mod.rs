@@ -4,6 +4,7 @@
 //! no window, so it runs on a headless station.
 
 mod font;
+pub mod raster;
 
 use crate::mesh::{Mesh, V3};
 use image::{Rgb, RgbImage};
@@ -226,44 +227,25 @@ fn draw_view(
         .collect();
     let cam_normals: Vec<V3> = normals.iter().map(|n| to_cam(&(n + centre))).collect();
     let light = V3::new(-0.4, 0.5, 0.77).normalize();
-    let mut depth = vec![f64::NEG_INFINITY; (w * h) as usize];
-    for t in &mesh.triangles {
-        let [a, b, c] = t.map(|i| screen[i as usize]);
-        let area = (b.x - a.x) * (c.y - a.y) - (b.y - a.y) * (c.x - a.x);
-        if area.abs() < 1e-12 {
-            continue;
-        }
-        let xmin = a.x.min(b.x).min(c.x).floor().max(x0 as f64) as i64;
-        let xmax = a.x.max(b.x).max(c.x).ceil().min((x0 + w - 1) as f64) as i64;
-        let ymin = a.y.min(b.y).min(c.y).floor().max(0.0) as i64;
-        let ymax = a.y.max(b.y).max(c.y).ceil().min((h - 1) as f64) as i64;
-        for py in ymin..=ymax {
-            for px in xmin..=xmax {
-                let (fx, fy) = (px as f64 + 0.5, py as f64 + 0.5);
-                let w0 = ((b.x - fx) * (c.y - fy) - (b.y - fy) * (c.x - fx)) / area;
-                let w1 = ((c.x - fx) * (a.y - fy) - (c.y - fy) * (a.x - fx)) / area;
-                let w2 = 1.0 - w0 - w1;
-                if w0 < 0.0 || w1 < 0.0 || w2 < 0.0 {
-                    continue;
-                }
-                let z = a.z * w0 + b.z * w1 + c.z * w2;
-                let di = (py as u32 * w + (px as u32 - x0)) as usize;
-                if z <= depth[di] {
-                    continue;
-                }
-                depth[di] = z;
-                let [ia, ib, ic] = t.map(|i| i as usize);
-                let n = cam_normals[ia] * w0 + cam_normals[ib] * w1 + cam_normals[ic] * w2;
-                let n = n.try_normalize(0.0).unwrap_or(V3::z());
-                // two-sided Lambert with a little ambient light
-                let shade = 0.25 + 0.75 * n.dot(&light).abs();
-                let col: [u8; 3] = std::array::from_fn(|k| {
-                    let v = colours[ia][k] * w0 + colours[ib][k] * w1 + colours[ic][k] * w2;
-                    (v * shade * 255.0).round().clamp(0.0, 255.0) as u8
-                });
-                img.put_pixel(px as u32, py as u32, Rgb(col));
-            }
-        }
+    // the panel's own pixels; nearer to the viewer is larger z, so the key is -z
+    let panel: Vec<V3> = screen
+        .iter()
+        .map(|p| V3::new(p.x - x0 as f64, p.y, -p.z))
+        .collect();
+    let frags = raster::rasterize(&panel, &mesh.triangles, w as usize, h as usize, |_| true);
+    for (i, f) in frags.iter().enumerate() {
+        let Some(f) = f else { continue };
+        let [w0, w1, w2] = f.weights();
+        let [ia, ib, ic] = mesh.triangles[f.triangle as usize].map(|i| i as usize);
+        let n = cam_normals[ia] * w0 + cam_normals[ib] * w1 + cam_normals[ic] * w2;
+        let n = n.try_normalize(0.0).unwrap_or(V3::z());
+        // two-sided Lambert with a little ambient light
+        let shade = 0.25 + 0.75 * n.dot(&light).abs();
+        let col: [u8; 3] = std::array::from_fn(|k| {
+            let v = colours[ia][k] * w0 + colours[ib][k] * w1 + colours[ic][k] * w2;
+            (v * shade * 255.0).round().clamp(0.0, 255.0) as u8
+        });
+        img.put_pixel(x0 + (i as u32 % w), i as u32 / w, Rgb(col));
     }
 }
 

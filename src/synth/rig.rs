@@ -195,48 +195,22 @@ pub fn render_camera(
     let (mw, mh) = ((w as f64 * margin) as usize, (h as f64 * margin) as usize);
     let (cw, ch) = (w + 2 * mw, h + 2 * mh);
     let cam: Vec<V3> = subject.vertices.iter().map(|p| pose.to_camera(p)).collect();
-    let px = |c: &V3| {
-        V3::new(
-            k.fx * c.x / c.z + k.cx + mw as f64,
-            k.fy * c.y / c.z + k.cy + mh as f64,
-            c.z,
-        )
-    };
-    let mut depth = vec![f64::INFINITY; cw * ch];
-    let mut hit: Vec<Option<(u32, f64, f64)>> = vec![None; cw * ch];
-    for (ti, t) in subject.triangles.iter().enumerate() {
-        let [a, b, c] = t.map(|i| cam[i as usize]);
-        if a.z <= 1e-6 || b.z <= 1e-6 || c.z <= 1e-6 {
-            continue;
-        }
-        let (pa, pb, pc) = (px(&a), px(&b), px(&c));
-        let area = (pb.x - pa.x) * (pc.y - pa.y) - (pb.y - pa.y) * (pc.x - pa.x);
-        if area.abs() < 1e-12 {
-            continue;
-        }
-        let x0 = pa.x.min(pb.x).min(pc.x).floor().max(0.0) as usize;
-        let x1 = (pa.x.max(pb.x).max(pc.x).ceil() as usize).min(cw - 1);
-        let y0 = pa.y.min(pb.y).min(pc.y).floor().max(0.0) as usize;
-        let y1 = (pa.y.max(pb.y).max(pc.y).ceil() as usize).min(ch - 1);
-        for y in y0..=y1 {
-            for x in x0..=x1 {
-                let (fx, fy) = (x as f64 + 0.5, y as f64 + 0.5);
-                let w0 = ((pb.x - fx) * (pc.y - fy) - (pb.y - fy) * (pc.x - fx)) / area;
-                let w1 = ((pc.x - fx) * (pa.y - fy) - (pc.y - fy) * (pa.x - fx)) / area;
-                let w2 = 1.0 - w0 - w1;
-                if w0 < 0.0 || w1 < 0.0 || w2 < 0.0 {
-                    continue;
-                }
-                // perspective-correct depth
-                let z = 1.0 / (w0 / a.z + w1 / b.z + w2 / c.z);
-                let i = y * cw + x;
-                if z < depth[i] {
-                    depth[i] = z;
-                    hit[i] = Some((ti as u32, w0 * z / a.z, w1 * z / b.z));
-                }
-            }
-        }
-    }
+    // perspective: -1/z is linear in screen space and smaller when nearer
+    let screen: Vec<V3> = cam
+        .iter()
+        .map(|c| {
+            V3::new(
+                k.fx * c.x / c.z + k.cx + mw as f64,
+                k.fy * c.y / c.z + k.cy + mh as f64,
+                -1.0 / c.z,
+            )
+        })
+        .collect();
+    let hit = crate::render::raster::rasterize(&screen, &subject.triangles, cw, ch, |t| {
+        subject.triangles[t]
+            .iter()
+            .all(|&i| cam[i as usize].z > 1e-6)
+    });
     // the projector
     let centre = (pod.left_pose.centre() + pod.right_pose().centre()) / 2.0;
     let proj = Pose::look_at(centre, V3::from(spec.look_at), V3::from(spec.up));
@@ -251,7 +225,7 @@ pub fn render_camera(
         if x < 0.0 || y < 0.0 || x >= cw as f64 || y >= ch as f64 {
             return None;
         }
-        let (t, _, _) = hit[y as usize * cw + x as usize]?;
+        let t = hit[y as usize * cw + x as usize]?.triangle;
         let [a, b, c] = subject.triangles[t as usize].map(|i| cam[i as usize]);
         let normal = (b - a).cross(&(c - a));
         let dir = V3::new(n.x, n.y, 1.0);
