@@ -15,6 +15,7 @@ pub mod align;
 pub mod coarse;
 pub mod correspond;
 pub mod fill;
+mod fit;
 pub mod rbf;
 pub mod solve;
 
@@ -23,7 +24,6 @@ use crate::mesh::quality::{self, Variation};
 use crate::mesh::transform::fit_similarity;
 use crate::mesh::{Mesh, V3, topology, vertex_normals};
 use correspond::{MatchLimits, ScanSurface};
-use nalgebra::{Matrix3, UnitQuaternion};
 use rayon::prelude::*;
 use std::collections::BTreeMap;
 use std::time::Instant;
@@ -494,284 +494,19 @@ pub fn conform(
         Some((tl, sl)) => Some(pair_landmarks(tl, sl, template, scan)?),
         None => None,
     };
-    let (mut x, global_sim, global_report) = match &pairs {
-        Some(p) => {
-            let src: Vec<V3> = p
-                .vertex
-                .iter()
-                .map(|&i| template.vertices[i as usize])
-                .collect();
-            let map = rbf::fit(&p.names, &src, &p.target, opts.rbf_smoothing)?;
-            let mapped: Vec<V3> = template.vertices.par_iter().map(|v| map.apply(v)).collect();
-            let sim = fit_similarity(&template.vertices, &mapped, None, true);
-            (
-                mapped,
-                sim,
-                GlobalReport::LandmarkRbf {
-                    pairs: p.names.clone(),
-                    unpaired: p.unpaired.clone(),
-                },
-            )
-        }
-        None => {
-            let (sim, rep) = align::auto_align(&template.vertices, &surface, &opts.align);
-            (
-                template.vertices.iter().map(|v| sim.apply(v)).collect(),
-                sim,
-                GlobalReport::Automatic(rep),
-            )
-        }
-    };
+    let (mut x, global_sim, global_report) =
+        global_mapping(template, &surface, pairs.as_ref(), opts)?;
     times.global = t0.elapsed().as_secs_f64();
 
-    // The springs' rest shape: the template under the global similarity, so that a
-    // scan in other units or another place does not load the springs.
-    let rest: Vec<V3> = match opts.rest {
-        RestShape::Template => template
-            .vertices
-            .iter()
-            .map(|v| global_sim.apply(v))
-            .collect(),
-        RestShape::Mapped => x.clone(),
-    };
-    let rest_mesh = Mesh::new(rest.clone(), template.triangles.clone());
-    let diag = rest_mesh.diagonal();
-    let neighbours = topology::vertex_neighbours(n, &template.triangles);
-    let baseline = quality::VariationBaseline::new(&template.vertices, &template.triangles);
-    let mut stiff = vec![1.0f64; n];
-    for (g, &k) in &opts.stiffness {
-        for &v in &template.groups[g] {
-            stiff[v as usize] = stiff[v as usize].max(k);
-        }
-    }
-    let default_method = opts.method == Method::Default;
-    let lap = solve::laplacian(&rest, &template.triangles, default_method, &stiff);
-    // Springs are scaled so that epsilon means the same for either weighting.
-    let mean_diag = lap.diag.iter().sum::<f64>() / n as f64;
-    let lap = solve::Laplacian {
-        weights: lap.weights.map(|w| w / mean_diag),
-        diag: lap.diag.iter().map(|d| d / mean_diag).collect(),
-    };
-    let limits = MatchLimits {
-        max_distance: opts.max_distance * diag,
-        min_normal_cos: opts.max_normal_angle.to_radians().cos(),
-    };
-    let mut landmark_weight = vec![0.0; n];
-    let mut landmark_target = vec![V3::zeros(); n];
-    if let (Some(p), true) = (&pairs, default_method) {
-        for (&v, t) in p.vertex.iter().zip(&p.target) {
-            landmark_weight[v as usize] += opts.landmark_weight;
-            landmark_target[v as usize] += t * opts.landmark_weight;
-        }
-        for v in 0..n {
-            if landmark_weight[v] > 0.0 {
-                landmark_target[v] /= landmark_weight[v];
-            }
-        }
-    }
-    let mut rot = vec![UnitQuaternion::identity(); n];
-    let mut local_scale = vec![1.0; n];
-    let rest_norms = solve::smoothed_rest_norms(&lap, &rest, opts.rotation_rings);
-    let coarse_wanted = match opts.coarse {
-        CoarseStage::Auto => pairs.is_none(),
-        CoarseStage::Always => true,
-        CoarseStage::Never => false,
-    };
-    if default_method && coarse_wanted && opts.coarse_nodes > 0 && opts.coarse_iterations > 0 {
-        let t = Instant::now();
-        let graph = coarse::build(&rest, &neighbours, opts.coarse_nodes);
-        let settings = coarse::CoarseSettings {
-            iterations: opts.coarse_iterations,
-            epsilon_start: opts.epsilon_start,
-            epsilon_end: opts.epsilon_end,
-            max_distance_start: opts.max_distance_start,
-            max_distance_end: opts.max_distance,
-            min_normal_cos: limits.min_normal_cos,
-            point_to_point: opts.point_to_point,
-            scan_to_template: opts.scan_to_template,
-        };
-        let (xc, rc) = coarse::run(
-            &graph,
-            &rest,
-            &x,
-            &template.triangles,
-            &surface,
-            diag,
-            &landmark_weight,
-            &landmark_target,
-            &settings,
-        );
-        x = xc;
-        rot = rc;
-        times.coarse = t.elapsed().as_secs_f64();
-    }
-    let mut reports: Vec<IterationReport> = Vec::new();
-    let mut converged = false;
-
-    for it in 0..opts.max_iterations {
-        let t_it = Instant::now();
-        let eps = opts.schedule(it, opts.epsilon_start, opts.epsilon_end);
-        let limits = MatchLimits {
-            max_distance: opts.schedule(it, opts.max_distance_start, opts.max_distance) * diag,
-            ..limits
-        };
-
-        // 2. Correspondence.
-        let t = Instant::now();
-        let (matches, _) = match_all(&surface, &x, &template.triangles, &limits);
-        times.correspond += t.elapsed().as_secs_f64();
-        let summary = MatchSummary::of(&matches);
-        if let Some(prev) = reports.last_mut() {
-            prev.mean_distance = summary.mean_distance;
-            prev.mean_distance_relative = summary.mean_distance / diag;
-        }
-
-        // 3. Grass fire.
-        let t = Instant::now();
-        let matched: Vec<bool> = matches.iter().map(Option::is_some).collect();
-        let mut disp: Vec<V3> = matches
-            .iter()
-            .zip(&x)
-            .map(|(m, p)| m.map_or(V3::zeros(), |m| m.point - p))
-            .collect();
-        let ring = fill::grass_fire(&neighbours, &matched, &mut disp);
-        let filled = ring.iter().filter(|&&r| r != 0 && r != u32::MAX).count();
-        let unreachable = ring.iter().filter(|&&r| r == u32::MAX).count();
-        times.fill += t.elapsed().as_secs_f64();
-
-        // 4. Elastic solve.
-        let x_prev = x.clone();
-        let mean_w = {
-            let (s, c) = matches
-                .iter()
-                .flatten()
-                .fold((0.0, 0usize), |(s, c), m| (s + m.weight, c + 1));
-            if c > 0 { s / c as f64 } else { 1.0 }
-        };
-        // A whisper of anchoring to the previous positions keeps the system positive
-        // definite when a whole component has no data.
-        let anchor = 1e-6 * mean_w;
-        let mut solver_iterations = 0;
-        if default_method {
-            let d: Vec<f64> = (0..n)
-                .map(|i| matches[i].map_or(0.0, |m| m.weight) + landmark_weight[i] + anchor)
-                .collect();
-            // Start from the grass-fire displacement: unmatched vertices carry no data
-            // weight, so the rotation-aware springs alone shape the holes.
-            let mut xc: Vec<V3> = (0..n)
-                .map(|i| if matched[i] { x[i] } else { x[i] + disp[i] })
-                .collect();
-            for _ in 0..opts.rotation_iterations.max(1) {
-                let t = Instant::now();
-                let scale = (opts.local_scale_limit > 1.0).then_some((
-                    &mut local_scale[..],
-                    &rest_norms[..],
-                    opts.local_scale_limit,
-                ));
-                solve::fit_rotations(&lap, &rest, &xc, opts.rotation_rings, &mut rot, scale);
-                let rm: Vec<Matrix3<f64>> = rot
-                    .iter()
-                    .zip(&matched)
-                    .zip(&local_scale)
-                    .map(|((q, &m), &s)| {
-                        if m || opts.hole_springs == HoleSprings::Rotated {
-                            q.to_rotation_matrix().matrix() * s
-                        } else {
-                            Matrix3::identity()
-                        }
-                    })
-                    .collect();
-                let springs = lap.rotated_rest(&rest, Some(&rm));
-                times.rotations += t.elapsed().as_secs_f64();
-                let t = Instant::now();
-                let b: Vec<V3> = (0..n)
-                    .into_par_iter()
-                    .map(|i| {
-                        let mut b = springs[i] * eps
-                            + x_prev[i] * anchor
-                            + landmark_target[i] * landmark_weight[i];
-                        if let Some(m) = &matches[i] {
-                            // point-to-plane: the foot of the current position on the
-                            // scan's tangent plane, blended with the point itself
-                            let foot = xc[i] - m.normal * m.normal.dot(&(xc[i] - m.point));
-                            b += (foot * (1.0 - opts.point_to_point)
-                                + m.point * opts.point_to_point)
-                                * m.weight;
-                        }
-                        b
-                    })
-                    .collect();
-                let st = solve::pcg(
-                    &lap,
-                    eps,
-                    &d,
-                    &b,
-                    &mut xc,
-                    opts.solver_tolerance,
-                    opts.solver_max_iterations,
-                );
-                solver_iterations += st.iterations;
-                times.solve += t.elapsed().as_secs_f64();
-            }
-            x = xc;
-        } else {
-            let t = Instant::now();
-            // The paper: every vertex labelled TRUE (matched, or filled by the grass
-            // fire) is attracted to its target; springs keep the original edge vectors.
-            let d: Vec<f64> = (0..n)
-                .map(|i| match (&matches[i], ring[i]) {
-                    (Some(m), _) => m.weight + anchor,
-                    (None, r) if r != u32::MAX => mean_w + anchor,
-                    _ => anchor,
-                })
-                .collect();
-            let springs = lap.rotated_rest(&rest, None);
-            let b: Vec<V3> = (0..n)
-                .map(|i| springs[i] * eps + (x[i] + disp[i]) * (d[i] - anchor) + x[i] * anchor)
-                .collect();
-            let st = solve::pcg(
-                &lap,
-                eps,
-                &d,
-                &b,
-                &mut x,
-                opts.solver_tolerance,
-                opts.solver_max_iterations,
-            );
-            solver_iterations = st.iterations;
-            times.solve += t.elapsed().as_secs_f64();
-        }
-
-        let max_update = x
-            .iter()
-            .zip(&x_prev)
-            .map(|(a, b)| (a - b).norm())
-            .fold(0.0, f64::max);
-        let rep = IterationReport {
-            iteration: it + 1,
-            epsilon: eps,
-            variation: baseline.measure(&x),
-            matched: summary.matched,
-            filled,
-            unreachable,
-            mean_distance: f64::NAN,
-            mean_distance_relative: f64::NAN,
-            max_update,
-            max_update_relative: max_update / diag,
-            solver_iterations,
-            seconds: t_it.elapsed().as_secs_f64(),
-        };
-        progress(&rep);
-        reports.push(rep);
-        if max_update < opts.tolerance * diag && it + 1 >= opts.epsilon_steps {
-            converged = true;
-            break;
-        }
-    }
+    // 2-4. The elastic fit: coarse stage, then the iterations.
+    let mut fit = fit::Fit::new(template, &x, &global_sim, pairs.as_ref(), opts);
+    times.coarse = fit.coarse(&mut x, &surface, pairs.is_some(), opts);
+    let (mut reports, converged) = fit.iterate(&mut x, &surface, opts, &mut times, progress);
+    let diag = fit.diag;
 
     // The distance of the final result to the scan.
     let t = Instant::now();
-    let (final_matches, normals) = match_all(&surface, &x, &template.triangles, &limits);
+    let (final_matches, normals) = match_all(&surface, &x, &template.triangles, &fit.limits);
     let fin = MatchSummary::of(&final_matches);
     times.correspond += t.elapsed().as_secs_f64();
     if let Some(r) = reports.last_mut() {
@@ -799,7 +534,7 @@ pub fn conform(
         scan_is_mesh: !scan.triangles.is_empty(),
         global: global_report,
         converged,
-        final_variation: baseline.measure(&mesh.vertices),
+        final_variation: fit.baseline.measure(&mesh.vertices),
         folded_triangles: quality::folded_triangles(&mesh),
         matched: fin.matched,
         filled: n - fin.matched,
@@ -812,6 +547,45 @@ pub fn conform(
         seconds: times,
     };
     Ok(Conformed { mesh, report })
+}
+
+/// Section 2.1: the template mapped onto the scan by the landmark RBF, or (without
+/// landmarks) by the automatic alignment; with the similarity that best explains the
+/// mapping (the springs' frame) and what the report says of it.
+fn global_mapping(
+    template: &Mesh,
+    surface: &ScanSurface,
+    pairs: Option<&Pairs>,
+    opts: &ConformOptions,
+) -> Result<(Vec<V3>, crate::mesh::transform::Similarity, GlobalReport), ConformError> {
+    Ok(match pairs {
+        Some(p) => {
+            let src: Vec<V3> = p
+                .vertex
+                .iter()
+                .map(|&i| template.vertices[i as usize])
+                .collect();
+            let map = rbf::fit(&p.names, &src, &p.target, opts.rbf_smoothing)?;
+            let mapped: Vec<V3> = template.vertices.par_iter().map(|v| map.apply(v)).collect();
+            let sim = fit_similarity(&template.vertices, &mapped, None, true);
+            (
+                mapped,
+                sim,
+                GlobalReport::LandmarkRbf {
+                    pairs: p.names.clone(),
+                    unpaired: p.unpaired.clone(),
+                },
+            )
+        }
+        None => {
+            let (sim, rep) = align::auto_align(&template.vertices, surface, &opts.align);
+            (
+                template.vertices.iter().map(|v| sim.apply(v)).collect(),
+                sim,
+                GlobalReport::Automatic(rep),
+            )
+        }
+    })
 }
 
 /// Every vertex's match (None: missing data), and the vertex normals used.

@@ -1,0 +1,379 @@
+//! The elastic fit after the global mapping: the springs' set-up (rest shape, Laplacian,
+//! landmark terms), the optional coarse deformation-graph stage, and the iterations of
+//! correspondence, grass fire and elastic solve, for either method.
+
+use super::correspond::{MatchLimits, ScanSurface};
+use super::{
+    CoarseStage, ConformOptions, HoleSprings, IterationReport, Method, Pairs, RestShape,
+    StageTimes, coarse, fill, match_all, solve,
+};
+use crate::mesh::transform::Similarity;
+use crate::mesh::{Mesh, V3, quality, topology};
+use nalgebra::{Matrix3, UnitQuaternion};
+use rayon::prelude::*;
+use std::time::Instant;
+
+/// Everything the iterations share, and the per-vertex rotations and scales they carry.
+pub(super) struct Fit<'a> {
+    pub tris: &'a [[u32; 3]],
+    pub rest: Vec<V3>,
+    pub lap: solve::Laplacian,
+    /// the rest shape's bounding-box diagonal: distances in options are relative to it
+    pub diag: f64,
+    pub neighbours: Vec<Vec<u32>>,
+    pub baseline: quality::VariationBaseline,
+    pub landmark_weight: Vec<f64>,
+    pub landmark_target: Vec<V3>,
+    rest_norms: Vec<f64>,
+    rot: Vec<UnitQuaternion<f64>>,
+    local_scale: Vec<f64>,
+    pub limits: MatchLimits,
+}
+
+impl<'a> Fit<'a> {
+    /// The springs' rest shape is the template under the global similarity (or, for the
+    /// paper's reading, the mapped mesh `x`), so that a scan in other units or another
+    /// place does not load the springs.
+    pub fn new(
+        template: &'a Mesh,
+        x: &[V3],
+        global: &Similarity,
+        pairs: Option<&Pairs>,
+        opts: &ConformOptions,
+    ) -> Fit<'a> {
+        let n = template.vertices.len();
+        let rest: Vec<V3> = match opts.rest {
+            RestShape::Template => template.vertices.iter().map(|v| global.apply(v)).collect(),
+            RestShape::Mapped => x.to_vec(),
+        };
+        let diag = Mesh::new(rest.clone(), template.triangles.clone()).diagonal();
+        let mut stiff = vec![1.0f64; n];
+        for (g, &k) in &opts.stiffness {
+            for &v in &template.groups[g] {
+                stiff[v as usize] = stiff[v as usize].max(k);
+            }
+        }
+        let default_method = opts.method == Method::Default;
+        let lap = solve::laplacian(&rest, &template.triangles, default_method, &stiff);
+        // Springs are scaled so that epsilon means the same for either weighting.
+        let mean_diag = lap.diag.iter().sum::<f64>() / n as f64;
+        let lap = solve::Laplacian {
+            weights: lap.weights.map(|w| w / mean_diag),
+            diag: lap.diag.iter().map(|d| d / mean_diag).collect(),
+        };
+        let mut landmark_weight = vec![0.0; n];
+        let mut landmark_target = vec![V3::zeros(); n];
+        if let (Some(p), true) = (pairs, default_method) {
+            for (&v, t) in p.vertex.iter().zip(&p.target) {
+                landmark_weight[v as usize] += opts.landmark_weight;
+                landmark_target[v as usize] += t * opts.landmark_weight;
+            }
+            for v in 0..n {
+                if landmark_weight[v] > 0.0 {
+                    landmark_target[v] /= landmark_weight[v];
+                }
+            }
+        }
+        let rest_norms = solve::smoothed_rest_norms(&lap, &rest, opts.rotation_rings);
+        Fit {
+            tris: &template.triangles,
+            neighbours: topology::vertex_neighbours(n, &template.triangles),
+            baseline: quality::VariationBaseline::new(&template.vertices, &template.triangles),
+            limits: MatchLimits {
+                max_distance: opts.max_distance * diag,
+                min_normal_cos: opts.max_normal_angle.to_radians().cos(),
+            },
+            rest,
+            lap,
+            diag,
+            landmark_weight,
+            landmark_target,
+            rest_norms,
+            rot: vec![UnitQuaternion::identity(); n],
+            local_scale: vec![1.0; n],
+        }
+    }
+
+    /// Runs the coarse deformation-graph stage when the options ask for it (by default
+    /// only without landmarks, with the default method); returns its seconds.
+    pub fn coarse(
+        &mut self,
+        x: &mut Vec<V3>,
+        surface: &ScanSurface,
+        with_landmarks: bool,
+        opts: &ConformOptions,
+    ) -> f64 {
+        let wanted = match opts.coarse {
+            CoarseStage::Auto => !with_landmarks,
+            CoarseStage::Always => true,
+            CoarseStage::Never => false,
+        };
+        if opts.method != Method::Default
+            || !wanted
+            || opts.coarse_nodes == 0
+            || opts.coarse_iterations == 0
+        {
+            return 0.0;
+        }
+        let t = Instant::now();
+        let graph = coarse::build(&self.rest, &self.neighbours, opts.coarse_nodes);
+        let settings = coarse::CoarseSettings {
+            iterations: opts.coarse_iterations,
+            epsilon_start: opts.epsilon_start,
+            epsilon_end: opts.epsilon_end,
+            max_distance_start: opts.max_distance_start,
+            max_distance_end: opts.max_distance,
+            min_normal_cos: self.limits.min_normal_cos,
+            point_to_point: opts.point_to_point,
+            scan_to_template: opts.scan_to_template,
+        };
+        let (xc, rc) = coarse::run(
+            &graph,
+            &self.rest,
+            x,
+            self.tris,
+            surface,
+            self.diag,
+            &self.landmark_weight,
+            &self.landmark_target,
+            &settings,
+        );
+        *x = xc;
+        self.rot = rc;
+        t.elapsed().as_secs_f64()
+    }
+
+    /// The fine iterations (sections 2.2-2.3): match, fill, solve, until the largest
+    /// update falls below the tolerance once epsilon has reached its end. Returns the
+    /// per-iteration reports and whether it converged.
+    pub fn iterate(
+        &mut self,
+        x: &mut Vec<V3>,
+        surface: &ScanSurface,
+        opts: &ConformOptions,
+        times: &mut StageTimes,
+        progress: &mut dyn FnMut(&IterationReport),
+    ) -> (Vec<IterationReport>, bool) {
+        let mut reports: Vec<IterationReport> = Vec::new();
+        for it in 0..opts.max_iterations {
+            let t_it = Instant::now();
+            let eps = opts.schedule(it, opts.epsilon_start, opts.epsilon_end);
+            let limits = MatchLimits {
+                max_distance: opts.schedule(it, opts.max_distance_start, opts.max_distance)
+                    * self.diag,
+                ..self.limits
+            };
+
+            // 2. Correspondence.
+            let t = Instant::now();
+            let (matches, _) = match_all(surface, x, self.tris, &limits);
+            times.correspond += t.elapsed().as_secs_f64();
+            let summary = super::MatchSummary::of(&matches);
+            if let Some(prev) = reports.last_mut() {
+                prev.mean_distance = summary.mean_distance;
+                prev.mean_distance_relative = summary.mean_distance / self.diag;
+            }
+
+            // 3. Grass fire.
+            let t = Instant::now();
+            let matched: Vec<bool> = matches.iter().map(Option::is_some).collect();
+            let mut disp: Vec<V3> = matches
+                .iter()
+                .zip(x.iter())
+                .map(|(m, p)| m.map_or(V3::zeros(), |m| m.point - p))
+                .collect();
+            let ring = fill::grass_fire(&self.neighbours, &matched, &mut disp);
+            let filled = ring.iter().filter(|&&r| r != 0 && r != u32::MAX).count();
+            let unreachable = ring.iter().filter(|&&r| r == u32::MAX).count();
+            times.fill += t.elapsed().as_secs_f64();
+
+            // 4. Elastic solve.
+            let x_prev = x.clone();
+            let step = Step {
+                matches: &matches,
+                matched: &matched,
+                disp: &disp,
+                ring: &ring,
+                eps,
+            };
+            let solver_iterations = match opts.method {
+                Method::Default => self.arap_solve(x, &x_prev, &step, opts, times),
+                Method::Paper => self.paper_solve(x, &step, opts, times),
+            };
+
+            let max_update = x
+                .iter()
+                .zip(&x_prev)
+                .map(|(a, b)| (a - b).norm())
+                .fold(0.0, f64::max);
+            let rep = IterationReport {
+                iteration: it + 1,
+                epsilon: eps,
+                variation: self.baseline.measure(x),
+                matched: summary.matched,
+                filled,
+                unreachable,
+                mean_distance: f64::NAN,
+                mean_distance_relative: f64::NAN,
+                max_update,
+                max_update_relative: max_update / self.diag,
+                solver_iterations,
+                seconds: t_it.elapsed().as_secs_f64(),
+            };
+            progress(&rep);
+            reports.push(rep);
+            if max_update < opts.tolerance * self.diag && it + 1 >= opts.epsilon_steps {
+                return (reports, true);
+            }
+        }
+        (reports, false)
+    }
+
+    /// The default method's solve: as-rigid-as-possible springs (rotations fitted over
+    /// rings, local scale within its limit), point-to-plane data and soft landmarks;
+    /// alternates rotation fits and linear solves. Returns solver iterations.
+    fn arap_solve(
+        &mut self,
+        x: &mut Vec<V3>,
+        x_prev: &[V3],
+        s: &Step,
+        opts: &ConformOptions,
+        times: &mut StageTimes,
+    ) -> usize {
+        let n = x.len();
+        let anchor = s.anchor();
+        let d: Vec<f64> = (0..n)
+            .map(|i| s.matches[i].map_or(0.0, |m| m.weight) + self.landmark_weight[i] + anchor)
+            .collect();
+        // Start from the grass-fire displacement: unmatched vertices carry no data
+        // weight, so the rotation-aware springs alone shape the holes.
+        let mut xc: Vec<V3> = (0..n)
+            .map(|i| if s.matched[i] { x[i] } else { x[i] + s.disp[i] })
+            .collect();
+        let mut solver_iterations = 0;
+        for _ in 0..opts.rotation_iterations.max(1) {
+            let t = Instant::now();
+            let scale = (opts.local_scale_limit > 1.0).then_some((
+                &mut self.local_scale[..],
+                &self.rest_norms[..],
+                opts.local_scale_limit,
+            ));
+            solve::fit_rotations(
+                &self.lap,
+                &self.rest,
+                &xc,
+                opts.rotation_rings,
+                &mut self.rot,
+                scale,
+            );
+            let rm: Vec<Matrix3<f64>> = self
+                .rot
+                .iter()
+                .zip(s.matched)
+                .zip(&self.local_scale)
+                .map(|((q, &m), &sc)| {
+                    if m || opts.hole_springs == HoleSprings::Rotated {
+                        q.to_rotation_matrix().matrix() * sc
+                    } else {
+                        Matrix3::identity()
+                    }
+                })
+                .collect();
+            let springs = self.lap.rotated_rest(&self.rest, Some(&rm));
+            times.rotations += t.elapsed().as_secs_f64();
+            let t = Instant::now();
+            let b: Vec<V3> = (0..n)
+                .into_par_iter()
+                .map(|i| {
+                    let mut b = springs[i] * s.eps
+                        + x_prev[i] * anchor
+                        + self.landmark_target[i] * self.landmark_weight[i];
+                    if let Some(m) = &s.matches[i] {
+                        // point-to-plane: the foot of the current position on the scan's
+                        // tangent plane, blended with the point itself
+                        let foot = xc[i] - m.normal * m.normal.dot(&(xc[i] - m.point));
+                        b += (foot * (1.0 - opts.point_to_point) + m.point * opts.point_to_point)
+                            * m.weight;
+                    }
+                    b
+                })
+                .collect();
+            let st = solve::pcg(
+                &self.lap,
+                s.eps,
+                &d,
+                &b,
+                &mut xc,
+                opts.solver_tolerance,
+                opts.solver_max_iterations,
+            );
+            solver_iterations += st.iterations;
+            times.solve += t.elapsed().as_secs_f64();
+        }
+        *x = xc;
+        solver_iterations
+    }
+
+    /// The paper's solve: every vertex labelled TRUE (matched, or filled by the grass
+    /// fire) is attracted to its target; springs keep the rest shape's edge vectors.
+    fn paper_solve(
+        &self,
+        x: &mut [V3],
+        s: &Step,
+        opts: &ConformOptions,
+        times: &mut StageTimes,
+    ) -> usize {
+        let t = Instant::now();
+        let n = x.len();
+        let (anchor, mean_w) = (s.anchor(), s.mean_weight());
+        let d: Vec<f64> = (0..n)
+            .map(|i| match (&s.matches[i], s.ring[i]) {
+                (Some(m), _) => m.weight + anchor,
+                (None, r) if r != u32::MAX => mean_w + anchor,
+                _ => anchor,
+            })
+            .collect();
+        let springs = self.lap.rotated_rest(&self.rest, None);
+        let b: Vec<V3> = (0..n)
+            .map(|i| springs[i] * s.eps + (x[i] + s.disp[i]) * (d[i] - anchor) + x[i] * anchor)
+            .collect();
+        let st = solve::pcg(
+            &self.lap,
+            s.eps,
+            &d,
+            &b,
+            x,
+            opts.solver_tolerance,
+            opts.solver_max_iterations,
+        );
+        times.solve += t.elapsed().as_secs_f64();
+        st.iterations
+    }
+}
+
+/// One iteration's data for the solve.
+struct Step<'s> {
+    matches: &'s [Option<super::correspond::Match>],
+    matched: &'s [bool],
+    /// grass-fire displacements (matched: to the match; filled: spread from neighbours)
+    disp: &'s [V3],
+    ring: &'s [u32],
+    eps: f64,
+}
+
+impl Step<'_> {
+    fn mean_weight(&self) -> f64 {
+        let (s, c) = self
+            .matches
+            .iter()
+            .flatten()
+            .fold((0.0, 0usize), |(s, c), m| (s + m.weight, c + 1));
+        if c > 0 { s / c as f64 } else { 1.0 }
+    }
+
+    /// A whisper of anchoring to the previous positions keeps the system positive
+    /// definite when a whole component has no data.
+    fn anchor(&self) -> f64 {
+        1e-6 * self.mean_weight()
+    }
+}
