@@ -20,11 +20,7 @@ use std::path::Path;
 #[derive(Debug, thiserror::Error)]
 pub enum JobError {
     #[error(transparent)]
-    Groups(#[from] mesh::groups::GroupsError),
-    #[error(transparent)]
-    Mesh(#[from] mesh::MeshError),
-    #[error(transparent)]
-    Landmarks(#[from] mesh::LandmarkError),
+    File(#[from] mesh::FileError),
     #[error("{path}: {msg}")]
     Config { path: String, msg: String },
     #[error("{0}")]

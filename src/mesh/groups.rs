@@ -3,40 +3,22 @@
 //! shape model analyse one segment.
 
 use super::Mesh;
+use crate::mesh::io::FileError;
 use std::collections::BTreeMap;
 use std::path::Path;
-
-#[derive(Debug, thiserror::Error)]
-pub enum GroupsError {
-    #[error("{path}: {source}")]
-    Io {
-        path: String,
-        source: std::io::Error,
-    },
-    #[error("{path}: line {line}: {msg}")]
-    Line {
-        path: String,
-        line: usize,
-        msg: String,
-    },
-}
 
 /// Parses a groups file, checking every index against `vertices`.
 pub fn parse(
     path: &str,
     text: &str,
     vertices: usize,
-) -> Result<BTreeMap<String, Vec<u32>>, GroupsError> {
+) -> Result<BTreeMap<String, Vec<u32>>, FileError> {
     let mut out: BTreeMap<String, Vec<u32>> = BTreeMap::new();
     for (i, raw) in text.lines().enumerate() {
         let line = raw.split('#').next().unwrap_or("").trim();
         let mut tok = line.split_whitespace();
         let Some(name) = tok.next() else { continue };
-        let err = |msg: String| GroupsError::Line {
-            path: path.into(),
-            line: i + 1,
-            msg,
-        };
+        let err = |msg: String| FileError::line(path, i + 1, msg);
         let set = out.entry(name.to_string()).or_default();
         for t in tok {
             let v: u32 = t
@@ -58,12 +40,9 @@ pub fn parse(
 }
 
 /// Reads a groups file for `mesh` and adds its groups (replacing same-named ones).
-pub fn read_into(path: &Path, mesh: &mut Mesh) -> Result<(), GroupsError> {
+pub fn read_into(path: &Path, mesh: &mut Mesh) -> Result<(), FileError> {
     let name = path.display().to_string();
-    let text = std::fs::read_to_string(path).map_err(|source| GroupsError::Io {
-        path: name.clone(),
-        source,
-    })?;
+    let text = std::fs::read_to_string(path).map_err(|e| FileError::io(&name, e))?;
     mesh.groups
         .extend(parse(&name, &text, mesh.vertices.len())?);
     Ok(())

@@ -11,8 +11,10 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 
 /// What went wrong reading or writing a mesh; every variant names the file.
+/// Why a mesh, landmark or groups file could not be read or written; every variant
+/// names the file, and a parse error the line.
 #[derive(Debug, thiserror::Error)]
-pub enum MeshError {
+pub enum FileError {
     #[error("{path}: {source}")]
     Io {
         path: String,
@@ -30,45 +32,57 @@ pub enum MeshError {
     Format { path: String },
 }
 
-fn line_err(path: &str, line: usize, msg: impl Into<String>) -> MeshError {
-    MeshError::Line {
-        path: path.to_string(),
-        line,
-        msg: msg.into(),
+impl FileError {
+    pub fn io(path: &str, source: std::io::Error) -> FileError {
+        FileError::Io {
+            path: path.to_string(),
+            source,
+        }
+    }
+    pub fn line(path: &str, line: usize, msg: impl Into<String>) -> FileError {
+        FileError::Line {
+            path: path.to_string(),
+            line,
+            msg: msg.into(),
+        }
+    }
+    pub fn content(path: &str, msg: impl Into<String>) -> FileError {
+        FileError::Content {
+            path: path.to_string(),
+            msg: msg.into(),
+        }
     }
 }
-fn content_err(path: &str, msg: impl Into<String>) -> MeshError {
-    MeshError::Content {
-        path: path.to_string(),
-        msg: msg.into(),
-    }
+
+fn line_err(path: &str, line: usize, msg: impl Into<String>) -> FileError {
+    FileError::line(path, line, msg)
+}
+fn content_err(path: &str, msg: impl Into<String>) -> FileError {
+    FileError::content(path, msg)
 }
 
 /// Reads a mesh or point cloud, choosing the reader by the file's extension.
 ///
 /// Example: `let scan = conformd::mesh::read_mesh("scan.ply".as_ref())?;`
-pub fn read_mesh(path: &Path) -> Result<Mesh, MeshError> {
+pub fn read_mesh(path: &Path) -> Result<Mesh, FileError> {
     let name = path.display().to_string();
     let ext = extension(path);
-    let bytes = std::fs::read(path).map_err(|source| MeshError::Io {
-        path: name.clone(),
-        source,
-    })?;
+    let bytes = std::fs::read(path).map_err(|e| FileError::io(&name, e))?;
     match ext.as_str() {
         "ply" => read_ply_bytes(&name, &bytes),
         "obj" => read_obj_bytes(&name, &bytes),
         "off" => read_off_bytes(&name, &bytes),
-        _ => Err(MeshError::Format { path: name }),
+        _ => Err(FileError::Format { path: name }),
     }
 }
 
 /// Writes `.ply` (binary little-endian) or `.obj`, atomically.
-pub fn write_mesh(path: &Path, mesh: &Mesh) -> Result<(), MeshError> {
+pub fn write_mesh(path: &Path, mesh: &Mesh) -> Result<(), FileError> {
     let bytes = match extension(path).as_str() {
         "ply" => ply_bytes(mesh, PlyEncoding::BinaryLittleEndian),
         "obj" => obj_bytes(mesh).into_bytes(),
         _ => {
-            return Err(MeshError::Format {
+            return Err(FileError::Format {
                 path: path.display().to_string(),
             });
         }
@@ -85,12 +99,9 @@ fn extension(path: &Path) -> String {
 
 /// Writes `bytes` to a temporary name in the same directory, syncs it, then renames it
 /// over `path`, so a reader (or a crash) never sees a half-written file.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), MeshError> {
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), FileError> {
     let name = path.display().to_string();
-    let io = |source| MeshError::Io {
-        path: name.clone(),
-        source,
-    };
+    let io = |e| FileError::io(&name, e);
     let dir = match path.parent() {
         Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
         _ => PathBuf::from("."),
@@ -202,7 +213,7 @@ const MAX_ELEMENTS: usize = 200_000_000;
 /// Reads a PLY mesh or point cloud (ascii or binary little-endian). Vertex properties
 /// `x y z` are required, `nx ny nz` are kept when present; faces (`vertex_indices` or
 /// `vertex_index`) with more than three corners are fan-triangulated.
-pub fn read_ply_bytes(path: &str, bytes: &[u8]) -> Result<Mesh, MeshError> {
+pub fn read_ply_bytes(path: &str, bytes: &[u8]) -> Result<Mesh, FileError> {
     // Header: ascii lines up to "end_header".
     let mut pos = 0usize;
     let mut line_no = 0usize;
@@ -650,7 +661,7 @@ pub fn ply_bytes(mesh: &Mesh, enc: PlyEncoding) -> Vec<u8> {
 /// Reads an OBJ through tobj: polygons are triangulated, `o`/`g` groups become named
 /// vertex groups. Vertices keep the file's order (tobj renumbers them per group; they are
 /// mapped back by position), so vertex i of the mesh is the file's i-th `v` line.
-pub fn read_obj_bytes(path: &str, bytes: &[u8]) -> Result<Mesh, MeshError> {
+pub fn read_obj_bytes(path: &str, bytes: &[u8]) -> Result<Mesh, FileError> {
     // The file's own vertex list, in order, for mapping tobj's renumbering back.
     let text = std::str::from_utf8(bytes).map_err(|e| {
         content_err(
@@ -804,7 +815,7 @@ pub fn obj_bytes(mesh: &Mesh) -> String {
 // ---------------------------------------------------------------- OFF
 
 /// Reads an OFF file (`OFF` header, counts, vertices, polygons; `#` comments allowed).
-pub fn read_off_bytes(path: &str, bytes: &[u8]) -> Result<Mesh, MeshError> {
+pub fn read_off_bytes(path: &str, bytes: &[u8]) -> Result<Mesh, FileError> {
     let text = std::str::from_utf8(bytes).map_err(|_| content_err(path, "not a text file"))?;
     // Tokens with their line numbers, comments stripped.
     let mut toks = text.lines().enumerate().flat_map(|(i, l)| {
@@ -819,7 +830,7 @@ pub fn read_off_bytes(path: &str, bytes: &[u8]) -> Result<Mesh, MeshError> {
         return Err(line_err(path, l, format!("expected 'OFF', found '{head}'")));
     }
     let last_line = std::cell::Cell::new(l);
-    let mut num = |what: &str| -> Result<f64, MeshError> {
+    let mut num = |what: &str| -> Result<f64, FileError> {
         let (l, t) = toks
             .next()
             .ok_or_else(|| content_err(path, format!("file ends while reading {what}")))?;
@@ -827,7 +838,7 @@ pub fn read_off_bytes(path: &str, bytes: &[u8]) -> Result<Mesh, MeshError> {
         t.parse::<f64>()
             .map_err(|_| line_err(path, l, format!("{what}: '{t}' is not a number")))
     };
-    let count = |x: f64, what: &str| -> Result<usize, MeshError> {
+    let count = |x: f64, what: &str| -> Result<usize, FileError> {
         if x < 0.0 || x.fract() != 0.0 || x > MAX_ELEMENTS as f64 {
             return Err(content_err(path, format!("bad {what} count {x}")));
         }

@@ -2,6 +2,7 @@
 //! scan), `#` comments; and MeshLab picked-points `.pp` files. Landmarks pair up by name.
 
 use super::{Mesh, V3};
+use crate::mesh::io::FileError;
 use std::path::Path;
 
 /// Where a landmark sits: a vertex of the mesh it belongs to, or a free point.
@@ -17,31 +18,11 @@ pub struct Landmark {
     pub pos: LandmarkPos,
 }
 
-#[derive(Debug, thiserror::Error)]
-pub enum LandmarkError {
-    #[error("{path}: {source}")]
-    Io {
-        path: String,
-        source: std::io::Error,
-    },
-    #[error("{path}: line {line}: {msg}")]
-    Line {
-        path: String,
-        line: usize,
-        msg: String,
-    },
-    #[error("{path}: {msg}")]
-    Content { path: String, msg: String },
-}
-
 /// Reads a landmark file; `.pp` files are read as MeshLab picked points, anything else as
 /// text.
-pub fn read_landmarks(path: &Path) -> Result<Vec<Landmark>, LandmarkError> {
+pub fn read_landmarks(path: &Path) -> Result<Vec<Landmark>, FileError> {
     let name = path.display().to_string();
-    let bytes = std::fs::read(path).map_err(|source| LandmarkError::Io {
-        path: name.clone(),
-        source,
-    })?;
+    let bytes = std::fs::read(path).map_err(|e| FileError::io(&name, e))?;
     let is_pp = path
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("pp"));
@@ -53,22 +34,16 @@ pub fn read_landmarks(path: &Path) -> Result<Vec<Landmark>, LandmarkError> {
 }
 
 /// Parses the text form; every name must be unique.
-pub fn parse_text(path: &str, bytes: &[u8]) -> Result<Vec<Landmark>, LandmarkError> {
-    let text = std::str::from_utf8(bytes).map_err(|_| LandmarkError::Content {
-        path: path.into(),
-        msg: "not a text file".into(),
-    })?;
+pub fn parse_text(path: &str, bytes: &[u8]) -> Result<Vec<Landmark>, FileError> {
+    let text =
+        std::str::from_utf8(bytes).map_err(|_| FileError::content(path, "not a text file"))?;
     let mut out: Vec<Landmark> = Vec::new();
     for (i, raw) in text.lines().enumerate() {
         let line = raw.split('#').next().unwrap_or("").trim();
         if line.is_empty() {
             continue;
         }
-        let err = |msg: String| LandmarkError::Line {
-            path: path.into(),
-            line: i + 1,
-            msg,
-        };
+        let err = |msg: String| FileError::line(path, i + 1, msg);
         let tok: Vec<&str> = line.split_whitespace().collect();
         let pos = match tok.len() {
             2 => LandmarkPos::Vertex(
@@ -116,27 +91,18 @@ fn push_unique(out: &mut Vec<Landmark>, name: &str, pos: LandmarkPos) -> Result<
 
 /// Parses a MeshLab `.pp` file: `<point x=".." y=".." z=".." name=".." active="1"/>`.
 /// Inactive points are skipped.
-pub fn parse_pp(path: &str, bytes: &[u8]) -> Result<Vec<Landmark>, LandmarkError> {
-    let text = std::str::from_utf8(bytes).map_err(|_| LandmarkError::Content {
-        path: path.into(),
-        msg: "not a text file".into(),
-    })?;
+pub fn parse_pp(path: &str, bytes: &[u8]) -> Result<Vec<Landmark>, FileError> {
+    let text =
+        std::str::from_utf8(bytes).map_err(|_| FileError::content(path, "not a text file"))?;
     if !text.contains("PickedPoints") {
-        return Err(LandmarkError::Content {
-            path: path.into(),
-            msg: "not a MeshLab PickedPoints file".into(),
-        });
+        return Err(FileError::content(path, "not a MeshLab PickedPoints file"));
     }
     let mut out = Vec::new();
     let mut rest = text;
     let mut offset = 0;
     while let Some(start) = rest.find("<point") {
         let line = text[..offset + start].lines().count().max(1);
-        let err = |msg: String| LandmarkError::Line {
-            path: path.into(),
-            line,
-            msg,
-        };
+        let err = |msg: String| FileError::line(path, line, msg);
         let tail = &rest[start..];
         let end = tail
             .find('>')

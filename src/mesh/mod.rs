@@ -15,8 +15,8 @@ use std::collections::BTreeMap;
 /// A 3-vector of `f64`, the geometry type used throughout conformd.
 pub type V3 = Vector3<f64>;
 
-pub use io::{MeshError, read_mesh, write_mesh};
-pub use landmarks::{Landmark, LandmarkError, LandmarkPos, read_landmarks};
+pub use io::{FileError, read_mesh, write_mesh};
+pub use landmarks::{Landmark, LandmarkPos, read_landmarks};
 
 /// A triangle mesh or, with no triangles, a point cloud.
 ///

@@ -472,7 +472,7 @@ impl ShapeModel {
         Ok(())
     }
 
-    pub fn save(&self, path: &std::path::Path) -> Result<(), crate::mesh::MeshError> {
+    pub fn save(&self, path: &std::path::Path) -> Result<(), crate::mesh::FileError> {
         let json = serde_json::to_vec(self).expect("a model serialises");
         crate::mesh::io::write_atomic(path, &json)
     }

@@ -276,16 +276,13 @@ fn draw_colour_bar(img: &mut RgbImage, x0: u32, w: u32, h: u32, min: f64, max: f
 }
 
 /// Writes an image as PNG, atomically.
-pub fn save_png(img: &RgbImage, path: &std::path::Path) -> Result<(), crate::mesh::MeshError> {
+pub fn save_png(img: &RgbImage, path: &std::path::Path) -> Result<(), crate::mesh::FileError> {
     let mut bytes = Vec::new();
     img.write_to(
         &mut std::io::Cursor::new(&mut bytes),
         image::ImageFormat::Png,
     )
-    .map_err(|e| crate::mesh::MeshError::Content {
-        path: path.display().to_string(),
-        msg: e.to_string(),
-    })?;
+    .map_err(|e| crate::mesh::FileError::content(&path.display().to_string(), e.to_string()))?;
     crate::mesh::io::write_atomic(path, &bytes)
 }
 
