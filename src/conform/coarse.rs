@@ -239,40 +239,19 @@ pub fn run(
             })
             .collect();
         let sampled = n.div_ceil(stride);
-        // Global step: node positions, with rotations fixed. Each vertex is linear in
-        // the node positions: x_v = sum_k w_vk p_k + c_v.
-        let rm: Vec<Matrix3<f64>> = def
-            .rot
-            .iter()
-            .map(|q| *q.to_rotation_matrix().matrix())
-            .collect();
-        let mut a = DMatrix::<f64>::zeros(nn, nn);
-        let mut b = DMatrix::<f64>::zeros(nn, 3);
+        // The data terms of this matching: (vertex, weight, target).
+        let mut terms: Vec<(usize, f64, V3)> = Vec::new();
         for v in 0..n {
-            let bl = &graph.blend[v];
-            let c: V3 = bl
-                .iter()
-                .map(|&(k, w)| rm[k as usize] * (rest[v] - graph.rest[k as usize]) * w)
-                .sum();
-            let mut add = |weight: f64, target: V3| {
-                for &(i, wi) in bl {
-                    for &(j, wj) in bl {
-                        a[(i as usize, j as usize)] += weight * wi * wj;
-                    }
-                    for d in 0..3 {
-                        b[(i as usize, d)] += weight * wi * (target[d] - c[d]);
-                    }
-                }
-            };
             if let Some(m) = &matches[v] {
                 let foot = x[v] - m.normal * m.normal.dot(&(x[v] - m.point));
-                add(
+                terms.push((
+                    v,
                     m.weight,
                     foot * (1.0 - s.point_to_point) + m.point * s.point_to_point,
-                );
+                ));
             }
             if landmark_weight[v] > 0.0 {
-                add(landmark_weight[v], landmark_target[v]);
+                terms.push((v, landmark_weight[v], landmark_target[v]));
             }
         }
         // The other direction: scan samples pull their nearest compatible vertex. Data a
@@ -288,68 +267,104 @@ pub fn run(
                     let p = scan.points[i];
                     let sn = scan.normal(i);
                     let r2 = lim.max_distance * lim.max_distance;
-                    let mut nb = tree.nearest_n_within::<kiddo::SquaredEuclidean>(
-                        &[p.x, p.y, p.z],
-                        r2,
+                    // the nearest vertex mostly faces the same way; only where it does
+                    // not (a thin part's far side) are the 8 nearest searched
+                    let q = [p.x, p.y, p.z];
+                    let one = tree.nearest_one::<kiddo::SquaredEuclidean>(&q);
+                    if one.distance > r2 {
+                        return None;
+                    }
+                    let v = one.item as usize;
+                    if normals[v].dot(&sn) >= s.min_normal_cos {
+                        return Some((v, p, sn));
+                    }
+                    tree.nearest_n::<kiddo::SquaredEuclidean>(
+                        &q,
                         std::num::NonZero::new(8).unwrap(),
-                        false,
-                    );
-                    nb.sort_unstable_by(|a, b| a.distance.total_cmp(&b.distance));
-                    nb.iter()
-                        .map(|m| m.item as usize)
-                        .find(|&v| normals[v].dot(&sn) >= s.min_normal_cos)
-                        .map(|v| (v, p, sn))
+                    )
+                    .iter()
+                    .filter(|m| m.distance <= r2)
+                    .map(|m| m.item as usize)
+                    .find(|&v| normals[v].dot(&sn) >= s.min_normal_cos)
+                    .map(|v| (v, p, sn))
                 })
                 .collect();
             let w = s.scan_to_template * (sampled as f64 / pulls.len().max(1) as f64).min(4.0);
             for (v, p, sn) in pulls {
                 let foot = x[v] - sn * sn.dot(&(x[v] - p));
-                let target = foot * (1.0 - s.point_to_point) + p * s.point_to_point;
-                let bl = &graph.blend[v];
-                let c: V3 = bl
-                    .iter()
-                    .map(|&(k, wk)| rm[k as usize] * (rest[v] - graph.rest[k as usize]) * wk)
-                    .sum();
-                for &(i, wi) in bl {
-                    for &(j, wj) in bl {
-                        a[(i as usize, j as usize)] += w * wi * wj;
-                    }
-                    for d in 0..3 {
-                        b[(i as usize, d)] += w * wi * (target[d] - c[d]);
-                    }
+                terms.push((v, w, foot * (1.0 - s.point_to_point) + p * s.point_to_point));
+            }
+        }
+        // Global step: node positions with rotations fixed. Each vertex is linear in the
+        // node positions, x_v = sum_k w_vk p_k + c_v(R), so the system matrix does not
+        // depend on the rotations: one factorisation serves every local-global round.
+        let per_node = sampled as f64 / nn as f64;
+        let mut a = DMatrix::<f64>::zeros(nn, nn);
+        for &(v, weight, _) in &terms {
+            let bl = &graph.blend[v];
+            for &(i, wi) in bl {
+                for &(j, wj) in bl {
+                    a[(i as usize, j as usize)] += weight * wi * wj;
                 }
             }
         }
         // graph springs: sum over node edges |p_i - p_j - (R_i + R_j)/2 (r_i - r_j)|^2,
         // scaled per node by the vertices it carries so epsilon keeps its meaning
-        let per_node = sampled as f64 / nn as f64;
+        let spring = |i: usize| eps * per_node / graph.edges[i].len() as f64;
         for i in 0..nn {
             for &j in &graph.edges[i] {
-                let j = j as usize;
-                let w = eps * per_node / graph.edges[i].len() as f64;
-                let e = (rm[i] + rm[j]) * (graph.rest[i] - graph.rest[j]) * 0.5;
+                let (j, w) = (j as usize, spring(i));
                 a[(i, i)] += w;
                 a[(j, j)] += w;
                 a[(i, j)] -= w;
                 a[(j, i)] -= w;
-                for d in 0..3 {
-                    b[(i, d)] += w * e[d];
-                    b[(j, d)] -= w * e[d];
-                }
             }
             // keep the system definite where a node has no data at all
             a[(i, i)] += 1e-6 * per_node;
-            for d in 0..3 {
-                b[(i, d)] += 1e-6 * per_node * def.pos[i][d];
-            }
         }
-        if let Some(ch) = a.cholesky() {
+        let Some(ch) = a.cholesky() else {
+            continue;
+        };
+        // one local-global round per matching: more rounds on the same matches were
+        // measured to change nothing (0.900% -> 0.906% on the articulated case)
+        {
+            let rm: Vec<Matrix3<f64>> = def
+                .rot
+                .iter()
+                .map(|q| *q.to_rotation_matrix().matrix())
+                .collect();
+            let mut b = DMatrix::<f64>::zeros(nn, 3);
+            for &(v, weight, target) in &terms {
+                let bl = &graph.blend[v];
+                let c: V3 = bl
+                    .iter()
+                    .map(|&(k, w)| rm[k as usize] * (rest[v] - graph.rest[k as usize]) * w)
+                    .sum();
+                for &(i, wi) in bl {
+                    for d in 0..3 {
+                        b[(i as usize, d)] += weight * wi * (target[d] - c[d]);
+                    }
+                }
+            }
+            for i in 0..nn {
+                for &j in &graph.edges[i] {
+                    let (j, w) = (j as usize, spring(i));
+                    let e = (rm[i] + rm[j]) * (graph.rest[i] - graph.rest[j]) * 0.5;
+                    for d in 0..3 {
+                        b[(i, d)] += w * e[d];
+                        b[(j, d)] -= w * e[d];
+                    }
+                }
+                for d in 0..3 {
+                    b[(i, d)] += 1e-6 * per_node * def.pos[i][d];
+                }
+            }
             let sol = ch.solve(&b);
             for k in 0..nn {
                 def.pos[k] = V3::new(sol[(k, 0)], sol[(k, 1)], sol[(k, 2)]);
             }
+            fit_node_rotations(graph, &mut def);
         }
-        fit_node_rotations(graph, &mut def);
         x = graph.apply(&def, rest);
     }
     let rm: Vec<UnitQuaternion<f64>> = (0..n)

@@ -216,21 +216,45 @@ impl ScanSurface {
             }
             Index::Cloud { normals, oriented } => {
                 let points = &self.points;
-                // bounded and unsorted: far vertices cost little, and only the nearest
-                // of the few neighbours needs finding
-                let r2 = lim.max_distance * lim.max_distance;
-                let nb = self.tree.nearest_n_within::<SquaredEuclidean>(
-                    &[x.x, x.y, x.z],
-                    r2,
-                    NonZero::new(CLOUD_K).unwrap(),
-                    false,
-                );
-                let first = nb.iter().min_by(|a, b| a.distance.total_cmp(&b.distance))?;
-                let n0 = normals[first.item as usize];
+                let one = self.tree.nearest_one::<SquaredEuclidean>(&[x.x, x.y, x.z]);
+                if one.distance > lim.max_distance * lim.max_distance {
+                    return None;
+                }
+                // x's own CLOUD_K nearest lie within a couple of spacings more than the
+                // nearest point's distance: gathering that small ball is far cheaper than
+                // kiddo's k-nearest search, which then serves only where the ball holds
+                // too few
+                let r = one.distance.sqrt() + 2.0 * self.spacing;
+                let mut ball: Vec<(f64, u32)> = self
+                    .tree
+                    .within_unsorted::<SquaredEuclidean>(&[x.x, x.y, x.z], r * r)
+                    .iter()
+                    .map(|m| (m.distance, m.item as u32))
+                    .collect();
+                if ball.len() < CLOUD_K {
+                    ball = self
+                        .tree
+                        .nearest_n::<SquaredEuclidean>(
+                            &[x.x, x.y, x.z],
+                            NonZero::new(CLOUD_K).unwrap(),
+                        )
+                        .iter()
+                        .map(|m| (m.distance, m.item as u32))
+                        .collect();
+                }
+                let k = CLOUD_K.min(ball.len());
+                if k == 0 {
+                    return None;
+                }
+                ball.select_nth_unstable_by(k - 1, |a, b| a.0.total_cmp(&b.0));
+                let nb: Vec<u32> = ball[..k].iter().map(|b| b.1).collect();
+                let nb = &nb;
+                let first = one.item as u32;
+                let n0 = normals[first as usize];
                 let mut c = V3::zeros();
                 let mut nsum = V3::zeros();
-                for m in &nb {
-                    let q = m.item as usize;
+                for &q in nb {
+                    let q = q as usize;
                     c += points[q];
                     let nq = normals[q];
                     nsum += if nq.dot(&n0) < 0.0 { -nq } else { nq };
@@ -243,7 +267,7 @@ impl ScanSurface {
                 // hole (all its neighbours lie to one side).
                 let reach = nb
                     .iter()
-                    .map(|m| (points[m.item as usize] - c).norm())
+                    .map(|&q| (points[q as usize] - c).norm())
                     .fold(self.spacing, f64::max);
                 if (foot - c).norm() > reach {
                     return None;
