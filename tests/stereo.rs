@@ -285,10 +285,30 @@ fn reconstruct_names_missing_and_mismatched_images() {
         &d.join("sim"),
     )
     .unwrap();
-    // so small a view matches nothing: said plainly, not an empty scan written
+    // the small view reconstructs (each pod searches only the volume's disparities)
+    let r = conformd::jobs::reconstruct(&sets[0], &rig_path, None, &d.join("ok.ply"), None, false)
+        .unwrap();
+    assert!(
+        r.pods
+            .iter()
+            .all(|p| p.points > 500 && p.disparities[1] - p.disparities[0] == 16)
+    );
+    // blank images match nothing: said plainly, not an empty scan written
+    let keep: Vec<Vec<u8>> = ["pod1-left.png", "pod1-right.png"]
+        .iter()
+        .map(|f| std::fs::read(sets[0].join(f)).unwrap())
+        .collect();
+    for f in ["pod1-left.png", "pod1-right.png"] {
+        image::GrayImage::from_pixel(160, 120, image::Luma([90]))
+            .save(sets[0].join(f))
+            .unwrap();
+    }
     let e = conformd::jobs::reconstruct(&sets[0], &rig_path, None, &d.join("s.ply"), None, false)
         .unwrap_err()
         .to_string();
+    for (f, bytes) in ["pod1-left.png", "pod1-right.png"].iter().zip(&keep) {
+        std::fs::write(sets[0].join(f), bytes).unwrap();
+    }
     assert!(
         e.contains("pod pod1")
             && e.contains("disparity map is empty")
@@ -447,4 +467,89 @@ fn subpixel_refinement_cuts_depth_noise_on_a_wall() {
         "noise {refined:.2} mm vs SGBM's {sgbm:.2} mm"
     );
     assert!(bias.abs() < 1.0, "bias {bias:.2} mm");
+}
+
+/// A wide, near rig (pods 1.6 m from the crate's centre line, 25 cm baselines): the
+/// nearest surface lies ~200 px of disparity away, beyond SGBM's default 128. Searching
+/// each pod's disparity range from the working volume keeps the scan whole; the fixed
+/// range loses the near side.
+#[test]
+#[cfg_attr(debug_assertions, ignore = "heavy: runs in release builds")]
+fn disparity_range_follows_the_working_volume() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let mut rig =
+        RigFile::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("config/rig.example.toml"))
+            .unwrap();
+    for (p, side) in rig.pods.iter_mut().zip([-1.0, 1.0]) {
+        p.position = [0.1, side * 1.6, 1.0];
+        p.baseline = 0.25;
+    }
+    rig.working_volume = Some([[-1.0, -0.5, -0.05], [1.1, 0.5, 1.0]]);
+    let rig_path = d.join("near.toml");
+    std::fs::write(&rig_path, toml::to_string(&rig).unwrap()).unwrap();
+    let sets = conformd::jobs::simulate(&rig_path, "pig", "", 1, 2.0, &d.join("sim")).unwrap();
+    let truth = read_mesh(&sets[0].join("truth.ply")).unwrap();
+    let mut station = conformd::jobs::Reconstruction::load(&rig_path, None).unwrap();
+    let mut figures = Vec::new();
+    for auto in [true, false] {
+        station.options.auto_disparity_range = auto;
+        let out = d.join(format!("scan-{auto}.ply"));
+        let r = station.run(&sets[0], &out, None, false).unwrap();
+        let scan = read_mesh(&out).unwrap();
+        let (mean, p95) = accuracy(&scan, &truth);
+        let cov = coverage(&scan, &truth, &rig_path);
+        eprintln!(
+            "near rig, disparities {:?}: {} points, mean {:.3}% p95 {:.3}%, coverage {:.1}%",
+            r.pods.iter().map(|p| p.disparities).collect::<Vec<_>>(),
+            scan.vertices.len(),
+            mean * 100.0,
+            p95 * 100.0,
+            cov * 100.0
+        );
+        figures.push((mean, p95, cov));
+    }
+    let ((mean, p95, cov), (_, _, fixed_cov)) = (figures[0], figures[1]);
+    assert!(
+        mean < 0.005 && p95 < 0.015,
+        "mean {:.3}% p95 {:.3}%",
+        mean * 100.0,
+        p95 * 100.0
+    );
+    assert!(cov >= 0.8, "coverage {:.1}%", cov * 100.0);
+    assert!(
+        cov > fixed_cov + 0.1,
+        "coverage {:.1}% vs {:.1}% with the fixed range",
+        cov * 100.0,
+        fixed_cov * 100.0
+    );
+}
+
+/// A rig file's `[reconstruct]` tables set the reconstruction; a bad value or an unknown
+/// key is named with the file.
+#[test]
+fn rig_file_reconstruct_settings() {
+    let dir = tempfile::tempdir().unwrap();
+    let base = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/config/rig.example.toml"
+    ))
+    .unwrap();
+    let write = |extra: &str| {
+        let p = dir.path().join("rig.toml");
+        std::fs::write(&p, format!("{base}\n{extra}")).unwrap();
+        p
+    };
+    let p = write("[reconstruct]\nvoxel = 0.01\n[reconstruct.sgbm]\nblock_size = 7\n");
+    let station = conformd::jobs::Reconstruction::load(&p, None).unwrap();
+    assert_eq!(station.options.voxel, 0.01);
+    assert_eq!(station.options.sgbm.block_size, 7);
+    assert_eq!(station.options.working_volume, station.rig.working_volume);
+    let e = RigFile::load(&write("[reconstruct.sgbm]\nblock_size = 4\n")).unwrap_err();
+    assert!(
+        e.contains("rig.toml") && e.contains("[reconstruct.sgbm]") && e.contains("block_size"),
+        "{e}"
+    );
+    let e = RigFile::load(&write("[reconstruct]\nvoxels = 0.01\n")).unwrap_err();
+    assert!(e.contains("rig.toml") && e.contains("voxels"), "{e}");
 }

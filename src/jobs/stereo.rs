@@ -381,10 +381,8 @@ impl Reconstruction {
             }
             pods.push(cal);
         }
-        let options = crate::stereo::reconstruct::ReconstructOptions {
-            working_volume: rig.working_volume,
-            ..Default::default()
-        };
+        let mut options = rig.reconstruct.clone().unwrap_or_default();
+        options.working_volume = options.working_volume.or(rig.working_volume);
         Ok(Reconstruction {
             rig,
             pods,

@@ -133,9 +133,27 @@ pub fn disparity_mats(left: &Mat, right: &Mat, o: &SgbmOptions) -> opencv::Resul
         o.speckle_range,
         StereoSGBM_MODE_SGBM_3WAY,
     )?;
+    // SGBM leaves the first min + num columns without a disparity (their match could lie
+    // left of the right image); padding both images on the left by as much gives every
+    // original column its full search, and the padding is cut off again
+    let pad = (o.min_disparity + o.num_disparities).max(0);
+    let padded = |m: &Mat| -> opencv::Result<Mat> {
+        let mut out = Mat::default();
+        core::copy_make_border(
+            m,
+            &mut out,
+            0,
+            0,
+            pad,
+            0,
+            core::BORDER_CONSTANT,
+            core::Scalar::all(0.0),
+        )?;
+        Ok(out)
+    };
     let mut disp = Mat::default();
-    sgbm.compute(left, right, &mut disp)?;
-    Ok(disp)
+    sgbm.compute(&padded(left)?, &padded(right)?, &mut disp)?;
+    Mat::roi(&disp, core::Rect::new(pad, 0, left.cols(), left.rows()))?.try_clone()
 }
 
 /// Converts OpenCV's fixed-point disparity (16 x pixels, CV_16S) to pixels, invalid = inf.

@@ -33,6 +33,11 @@ pub struct ReconstructOptions {
     pub working_volume: Option<[[f64; 3]; 2]>,
     /// triangulation of the depth grids (`reconstruct --mesh`)
     pub mesh: GridMeshOptions,
+    /// with a working volume, each pod searches only the disparities the volume can
+    /// produce (from its nearest to its farthest corner), in place of
+    /// `sgbm.min_disparity` and `sgbm.num_disparities`: no match outside the volume, a
+    /// near booth not cut off at 128 pixels, and less work for a far one
+    pub auto_disparity_range: bool,
 }
 
 /// How a pod's depth grid becomes a mesh ([`DepthGrid::mesh`]).
@@ -67,6 +72,7 @@ impl Default for ReconstructOptions {
             outlier_sigma: 2.0,
             working_volume: None,
             mesh: GridMeshOptions::default(),
+            auto_disparity_range: true,
         }
     }
 }
@@ -92,6 +98,8 @@ pub struct PodReport {
     pub valid_disparity_share: f64,
     /// the rectification maps came from the cache (built for an earlier capture)
     pub maps_reused: bool,
+    /// the disparities searched, [first, past the last], pixels
+    pub disparities: [i32; 2],
     pub seconds_rectify: f64,
     pub seconds_disparity: f64,
     pub seconds_reproject: f64,
@@ -227,6 +235,38 @@ impl PodRectifier {
             maps,
             grids: pixel_grids(size.width, size.height)?,
         })
+    }
+
+    /// The disparities (minimum, count as SGBM takes them: a multiple of 16) under
+    /// which this pod sees every point of the box `volume` ([min, max] corners, rig
+    /// frame), with 2 pixels to spare; None when the box is not in front of the pod.
+    pub fn disparity_range(&self, volume: [[f64; 3]; 2]) -> Option<(i32, i32)> {
+        let [lo, hi] = volume;
+        let depths: Vec<f64> = (0..8)
+            .map(|c| {
+                let p = V3::new(
+                    if c & 1 == 0 { lo[0] } else { hi[0] },
+                    if c & 2 == 0 { lo[1] } else { hi[1] },
+                    if c & 4 == 0 { lo[2] } else { hi[2] },
+                );
+                (self.rot.transpose() * (p - self.shift)).z
+            })
+            .collect();
+        let far = depths.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
+        if far <= 0.0 {
+            return None;
+        }
+        // a corner behind or beside the camera bounds nothing: the near side then is
+        // as near as a tenth of the far corner
+        let near = depths
+            .iter()
+            .cloned()
+            .fold(f64::INFINITY, f64::min)
+            .max(far * 0.1);
+        let fb = self.focal * self.pod.baseline();
+        let min = ((fb / far).floor() as i32 - 2).max(0);
+        let count = ((fb / near + 2.0 - min as f64) / 16.0).ceil() as i32 * 16;
+        Some((min, count.clamp(16, 1024)))
     }
 
     fn remap(&self, right: bool, img: &Mat) -> opencv::Result<Mat> {
@@ -582,7 +622,17 @@ pub fn reconstruct(
             maps_reused,
             ..Default::default()
         };
-        let grid = pod_grid(rectifier, p.left, p.right, &o.sgbm, &mut pr).map_err(ocv)?;
+        let mut sgbm = o.sgbm.clone();
+        if let (true, Some(v)) = (o.auto_disparity_range, o.working_volume)
+            && let Some((min, count)) = rectifier.disparity_range(v)
+        {
+            (sgbm.min_disparity, sgbm.num_disparities) = (min, count);
+        }
+        pr.disparities = [
+            sgbm.min_disparity,
+            sgbm.min_disparity + sgbm.num_disparities,
+        ];
+        let grid = pod_grid(rectifier, p.left, p.right, &sgbm, &mut pr).map_err(ocv)?;
         if pr.points == 0 {
             return Err(ReconstructError::EmptyDisparity { pod: id });
         }

@@ -65,6 +65,10 @@ pub struct RigFile {
     pub pods: Vec<PodSpec>,
     /// the part of the rig frame scans are cropped to: [min, max] corners (m)
     pub working_volume: Option<[[f64; 3]; 2]>,
+    /// reconstruction settings for this rig (`[reconstruct]`, `[reconstruct.sgbm]`,
+    /// `[reconstruct.mesh]`); the defaults when absent
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reconstruct: Option<crate::stereo::reconstruct::ReconstructOptions>,
 }
 
 impl RigFile {
@@ -73,6 +77,11 @@ impl RigFile {
         let rig: RigFile = toml::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))?;
         if rig.pods.is_empty() {
             return Err(format!("{}: no [[pods]]", path.display()));
+        }
+        if let Some(o) = &rig.reconstruct {
+            o.sgbm
+                .validate()
+                .map_err(|e| format!("{}: [reconstruct.sgbm]: {e}", path.display()))?;
         }
         for p in &rig.pods {
             if let Some(rows) = p.rotation {
