@@ -175,7 +175,7 @@ impl Default for ConformOptions {
             rest: RestShape::Template,
             coarse: CoarseStage::Auto,
             coarse_nodes: 300,
-            coarse_iterations: 30,
+            coarse_iterations: 90,
             scan_to_template: 1.0,
             solver_tolerance: 1e-4,
             solver_max_iterations: 300,
