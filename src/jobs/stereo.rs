@@ -177,6 +177,45 @@ pub fn simulate_placement(
     )
 }
 
+/// One camera's image from a capture set: the pod's `side` camera in the manifest, read
+/// as 8-bit grey and checked against the calibration's size. Errors name the camera and
+/// the file. Returns the pixels and the camera's name with its file, for later errors.
+fn camera_image(
+    capture: &Path,
+    manifest: &crate::rig::capture::Manifest,
+    pod: &str,
+    side: &str,
+    size: (u32, u32),
+) -> Result<(image::GrayImage, String), JobError> {
+    let cam = manifest
+        .cameras
+        .iter()
+        .find(|c| c.pod == pod && c.side == side)
+        .ok_or_else(|| {
+            JobError::Usage(format!(
+                "{}: no {side} image of pod {pod} in the capture set",
+                capture.display()
+            ))
+        })?;
+    let path = capture.join(&cam.file);
+    let named = format!("camera {} ({})", cam.id, path.display());
+    let fail =
+        |what: String| JobError::Usage(format!("camera {}: {}: {what}", cam.id, path.display()));
+    let img = image::open(&path)
+        .map_err(|e| fail(e.to_string()))?
+        .to_luma8();
+    if img.dimensions() != size {
+        return Err(fail(format!(
+            "the image is {}x{}, the calibration is for {}x{}",
+            img.width(),
+            img.height(),
+            size.0,
+            size.1
+        )));
+    }
+    Ok((img, named))
+}
+
 /// One pod's pose found by `calibrate --placement`.
 #[derive(Debug, Clone, serde::Serialize)]
 pub struct PodPlacement {
@@ -227,33 +266,9 @@ pub fn calibrate_placement(
     for (pod, spec) in station.pods.iter().zip(&mut rig.pods) {
         let mut views = Vec::new();
         for (side, k) in [("left", &pod.left), ("right", &pod.right)] {
-            let cam = manifest
-                .cameras
-                .iter()
-                .find(|c| c.pod == pod.id && c.side == side)
-                .ok_or_else(|| {
-                    JobError::Usage(format!(
-                        "{}: no {side} image of pod {} in the capture set",
-                        capture.display(),
-                        pod.id
-                    ))
-                })?;
-            let path = capture.join(&cam.file);
-            let named = |what: String| {
-                JobError::Usage(format!("camera {}: {}: {what}", cam.id, path.display()))
-            };
-            let img = image::open(&path)
-                .map_err(|e| named(e.to_string()))?
-                .to_luma8();
-            if img.dimensions() != (k.width, k.height) {
-                return Err(named(format!(
-                    "the image is {}x{}, the calibration is for {}x{}",
-                    img.width(),
-                    img.height(),
-                    k.width,
-                    k.height
-                )));
-            }
+            let (img, named) =
+                camera_image(capture, &manifest, &pod.id, side, (k.width, k.height))?;
+            let named = |what: String| JobError::Usage(format!("{named}: {what}"));
             let view = crate::stereo::calibrate::board_pose(k, img.as_raw(), cols, rows, square)
                 .map_err(|e| named(e))?
                 .ok_or_else(|| {
@@ -408,38 +423,15 @@ impl Reconstruction {
         for pod in &self.pods {
             let mut pair = Vec::new();
             for side in ["left", "right"] {
-                let cam = manifest
-                    .cameras
-                    .iter()
-                    .find(|c| c.pod == pod.id && c.side == side)
-                    .ok_or_else(|| {
-                        JobError::Usage(format!(
-                            "{}: no {side} image of pod {} in the capture set",
-                            capture.display(),
-                            pod.id
-                        ))
-                    })?;
-                let path = capture.join(&cam.file);
-                let named = |what: String| {
-                    JobError::Usage(format!("camera {}: {}: {what}", cam.id, path.display()))
-                };
-                let img = image::open(&path)
-                    .map_err(|e| named(e.to_string()))?
-                    .to_luma8();
-                if (img.width(), img.height()) != (pod.left.width, pod.left.height) {
-                    return Err(named(format!(
-                        "the image is {}x{}, the calibration is for {}x{}",
-                        img.width(),
-                        img.height(),
-                        pod.left.width,
-                        pod.left.height
-                    )));
-                }
+                let (img, named) = camera_image(
+                    capture,
+                    &manifest,
+                    &pod.id,
+                    side,
+                    (pod.left.width, pod.left.height),
+                )?;
                 pair.push(img.into_raw());
-                cameras.push((
-                    pod.id.clone(),
-                    format!("camera {} ({})", cam.id, path.display()),
-                ));
+                cameras.push((pod.id.clone(), named));
             }
             let right = pair.pop().expect("two sides");
             images.push((pair.pop().expect("two sides"), right));
