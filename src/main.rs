@@ -151,8 +151,10 @@ enum Cmd {
         /// folder of pod calibrations (`<pod>.yml`) for --placement's lenses
         #[arg(long)]
         calibration: Option<PathBuf>,
-        /// where the board's origin lies in the rig frame, for --placement: x,y,z (m); the
-        /// board lies flat, its axes along the rig's
+        /// for --placement: where the board's origin lies in the rig frame, x,y,z (m). The
+        /// board lies face up, its long side along the rig's x; the origin is the outer
+        /// corner of the dark corner square from which the long side runs towards +x and
+        /// the short side towards -y
         #[arg(long, default_value = "0,0,0")]
         board_origin: String,
         /// inner corners, e.g. 9x6
@@ -161,6 +163,7 @@ enum Cmd {
         /// square size (m)
         #[arg(long)]
         square: f64,
+        /// the pod's calibration (OpenCV YAML), or with --placement the measured rig file
         #[arg(long)]
         out: PathBuf,
     },
