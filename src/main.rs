@@ -121,6 +121,10 @@ enum Cmd {
         /// by every pod (for `calibrate --placement`), instead of calibration views
         #[arg(long, requires = "chessboard")]
         placement: bool,
+        /// with --placement: the board's long side turned this many degrees from the rig's
+        /// x towards its y
+        #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+        board_yaw: f64,
         #[arg(long, default_value = "")]
         pose: String,
         #[arg(long, default_value_t = 1)]
@@ -152,11 +156,15 @@ enum Cmd {
         #[arg(long)]
         calibration: Option<PathBuf>,
         /// for --placement: where the board's origin lies in the rig frame, x,y,z (m). The
-        /// board lies face up, its long side along the rig's x; the origin is the outer
-        /// corner of the dark corner square from which the long side runs towards +x and
-        /// the short side towards -y
-        #[arg(long, default_value = "0,0,0")]
+        /// board lies face up; the origin is the outer corner of the dark corner square
+        /// from which the long side runs along the yaw direction and the short side to its
+        /// right (seen from above)
+        #[arg(long, default_value = "0,0,0", allow_hyphen_values = true)]
         board_origin: String,
+        /// for --placement: the board's long side turned this many degrees from the rig's
+        /// x towards its y
+        #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+        board_yaw: f64,
         /// inner corners, e.g. 9x6
         #[arg(long)]
         board: String,
@@ -448,13 +456,14 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
             square,
             views,
             placement,
+            board_yaw,
             pose,
             captures,
             noise,
             out,
         } => {
             if let (true, Some(board)) = (placement, &chessboard) {
-                let d = jobs::simulate_placement(&rig, board, square, noise, &out)?;
+                let d = jobs::simulate_placement(&rig, board, square, board_yaw, noise, &out)?;
                 println!("wrote {}", d.display());
             } else if let Some(board) = chessboard {
                 for d in jobs::simulate_chessboard(&rig, &board, square, views, &out)? {
@@ -474,11 +483,15 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
             rig,
             calibration,
             board_origin,
+            board_yaw,
             board,
             square,
             out,
         } => {
-            let origin = parse_point(&board_origin)?;
+            let placement = conformd::stereo::calibrate::BoardPlacement {
+                origin: parse_point(&board_origin)?,
+                yaw: board_yaw,
+            };
             let rig = rig.expect("clap requires --rig with --placement");
             let found = jobs::calibrate_placement(
                 &capture,
@@ -486,7 +499,7 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
                 calibration.as_deref(),
                 &board,
                 square,
-                origin,
+                &placement,
                 &out,
             )?;
             for p in &found {

@@ -140,13 +140,15 @@ fn write_simulated_set(
     Ok(dir)
 }
 
-/// Renders one capture set of a chessboard lying flat on the rig's floor, seen by every
-/// pod, for `calibrate --placement`; the board's origin in the rig frame is written
-/// beside the images (`placement.toml`: `board`, `square`, `origin`).
+/// Renders one capture set of a chessboard lying face up on the rig's floor, its long
+/// side turned `yaw` degrees from the rig's x, seen by every pod, for `calibrate
+/// --placement`; where the board lies is written beside the images (`placement.toml`:
+/// `board`, `square`, `origin`, `yaw`).
 pub fn simulate_placement(
     rig_path: &Path,
     board: &str,
     square: f64,
+    yaw: f64,
     noise: f64,
     out: &Path,
 ) -> Result<PathBuf, JobError> {
@@ -154,7 +156,8 @@ pub fn simulate_placement(
     let (cols, rows) = parse_board(board)?;
     let rig = RigFile::load(rig_path).map_err(JobError::Usage)?;
     let cb = Chessboard { cols, rows, square };
-    let (origin, pose) = placement_board(&rig, &cb);
+    let placement = placement_board(&rig, &cb, yaw);
+    let pose = placement.board_from_rig();
     let mut images = Vec::new();
     for pod in rig.pods() {
         for (right, side) in [(false, "left"), (true, "right")] {
@@ -163,9 +166,9 @@ pub fn simulate_placement(
             images.push((pod.id.clone(), side, k.width, k.height, px));
         }
     }
-    let placement = format!(
-        "board = \"{cols}x{rows}\"\nsquare = {square}\norigin = [{}, {}, {}]\n",
-        origin.x, origin.y, origin.z
+    let [x, y, z] = placement.origin;
+    let text = format!(
+        "board = \"{cols}x{rows}\"\nsquare = {square}\norigin = [{x}, {y}, {z}]\nyaw = {yaw}\n"
     );
     write_simulated_set(
         out,
@@ -173,7 +176,7 @@ pub fn simulate_placement(
         &rig.name,
         "placement board",
         images,
-        &[("placement.toml", placement.into_bytes())],
+        &[("placement.toml", text.into_bytes())],
     )
 }
 
@@ -237,10 +240,10 @@ pub struct PodPlacement {
 /// all pods see, and writes
 /// the rig file with the measured `position` and `rotation` of every pod to `out`.
 /// Lenses come from `calibration/<pod>.yml` when given, else from the rig file.
-/// The board lies face up, its long side (the `cols` inner corners) along the rig's x,
-/// and `origin` is where its origin lies in the rig frame: the outer corner of the dark
-/// corner square from which the long side runs along +x with the board's
-/// other side towards -y (see `stereo::calibrate::board_pose` for the board frame).
+/// The board lies face up as `placement` says: its long side (the `cols` inner corners)
+/// turned `yaw` degrees from the rig's x, its origin (the outer corner of the dark corner
+/// square from which the long side runs along the yaw direction and the short side to its
+/// right, seen from above) at `origin` (see `stereo::calibrate::board_pose`).
 ///
 /// Example: `conformd calibrate --placement captures/<id> --rig rig.toml --calibration cal
 /// --board 9x6 --square 0.08 --out rig-measured.toml`; see `tests/calibration.rs`.
@@ -250,7 +253,7 @@ pub fn calibrate_placement(
     calibration: Option<&Path>,
     board: &str,
     square: f64,
-    origin: [f64; 3],
+    placement: &crate::stereo::calibrate::BoardPlacement,
     out: &Path,
 ) -> Result<Vec<PodPlacement>, JobError> {
     use crate::stereo::calib::Pose;
@@ -258,9 +261,7 @@ pub fn calibrate_placement(
     let station = Reconstruction::load(rig_path, calibration)?;
     let manifest =
         crate::rig::capture::Manifest::read(capture).map_err(|e| JobError::Usage(e.to_string()))?;
-    let origin = mesh::V3::from(origin);
-    // the board face up: its x along the rig's x, its z (into the board) down
-    let board_axes = nalgebra::Matrix3::from_diagonal(&mesh::V3::new(1.0, -1.0, -1.0));
+    let board = placement.board_from_rig();
     let mut rig = station.rig.clone();
     let mut found = Vec::new();
     for (pod, spec) in station.pods.iter().zip(&mut rig.pods) {
@@ -276,12 +277,11 @@ pub fn calibrate_placement(
                         "the {cols}x{rows} board is not in view; every pod must see the whole board"
                     ))
                 })?;
-            // board -> camera, and x_board = B (x_rig - origin)
-            let r = view.pose.r * board_axes;
+            // rig -> board -> camera
             views.push((
                 Pose {
-                    r,
-                    t: view.pose.t - r * origin,
+                    r: view.pose.r * board.r,
+                    t: view.pose.r * board.t + view.pose.t,
                 },
                 view.rms,
             ));

@@ -449,3 +449,29 @@ pub fn board_pose(
     };
     run().map_err(|e| format!("OpenCV: {e}"))
 }
+
+/// Where a placement board lies in the rig: face up, its long side (the `cols` corners)
+/// turned `yaw` degrees from the rig's +x towards +y, its origin at `origin` (rig frame,
+/// m); the board frame of [`board_pose`] then has z pointing down into the floor.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct BoardPlacement {
+    pub origin: [f64; 3],
+    #[serde(default)]
+    pub yaw: f64,
+}
+
+impl BoardPlacement {
+    /// The board's pose: `x_board = B (x_rig - origin)`.
+    pub fn board_from_rig(&self) -> Pose {
+        let turn = nalgebra::Rotation3::from_axis_angle(&V3::z_axis(), self.yaw.to_radians());
+        // rows: the board's axes in the rig frame (x along the long side, y across it
+        // away from the origin, z down)
+        let b =
+            nalgebra::Matrix3::from_diagonal(&V3::new(1.0, -1.0, -1.0)) * turn.matrix().transpose();
+        let origin = V3::from(self.origin);
+        Pose {
+            r: b,
+            t: -(b * origin),
+        }
+    }
+}

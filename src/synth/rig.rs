@@ -428,26 +428,31 @@ pub fn chessboard_poses(
 }
 
 /// Where `simulate --placement` lays the board: face up on the floor (z = 0), centred
-/// under the working volume (or the rig origin), its x axis along the rig's x; the board
-/// frame's z points into the board, so its y runs along the rig's -y. Returns the board's
-/// origin in the rig frame and its pose (`x_board = B (x_rig - origin)`, B = diag(1, -1, -1)).
-pub fn placement_board(rig: &RigFile, cb: &Chessboard) -> (V3, Pose) {
+/// under the working volume (or the rig origin), its long side turned `yaw` degrees from
+/// the rig's x.
+pub fn placement_board(
+    rig: &RigFile,
+    cb: &Chessboard,
+    yaw: f64,
+) -> crate::stereo::calibrate::BoardPlacement {
     let centre = rig
         .working_volume
         .map(|[lo, hi]| V3::new((lo[0] + hi[0]) / 2.0, (lo[1] + hi[1]) / 2.0, 0.0))
         .unwrap_or_else(V3::zeros);
-    let origin = centre
-        + V3::new(
-            -((cb.cols + 1) as f64) * cb.square / 2.0,
-            (cb.rows + 1) as f64 * cb.square / 2.0,
-            0.0,
-        );
-    let b = Matrix3::from_diagonal(&V3::new(1.0, -1.0, -1.0));
-    (
-        origin,
-        Pose {
-            r: b,
-            t: -(b * origin),
-        },
-    )
+    // the board centre is half its size along its x and y axes from the origin
+    let centred = crate::stereo::calibrate::BoardPlacement {
+        origin: [0.0; 3],
+        yaw,
+    };
+    let b = centred.board_from_rig().r;
+    let half = V3::new(
+        (cb.cols + 1) as f64 * cb.square / 2.0,
+        (cb.rows + 1) as f64 * cb.square / 2.0,
+        0.0,
+    );
+    let origin = centre - b.transpose() * half;
+    crate::stereo::calibrate::BoardPlacement {
+        origin: [origin.x, origin.y, origin.z],
+        yaw,
+    }
 }
