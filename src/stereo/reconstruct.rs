@@ -438,8 +438,13 @@ impl DepthGrid {
     }
 }
 
-/// Rectifies one pod's image pair with its cached maps, matches, and reprojects every
-/// valid pixel into the rig frame. The pixels are 8-bit grey, the calibration's size.
+/// Rectifies one pod's image pair with its cached maps, matches (SGBM over `o`'s
+/// disparities, then the sub-pixel refinement), and reprojects every pixel that has a
+/// match, enough local texture (`o.min_contrast`) and no unmatched pixel or disparity
+/// jump within `o.edge_margin` into the rig frame.
+///
+/// In: 8-bit grey left and right pixels of the calibration's size (row-major).
+/// Out: the pod's depth grid; `report` gets the pod's counts and seconds per stage.
 pub fn pod_grid(
     rectifier: &PodRectifier,
     left: &[u8],
@@ -586,8 +591,10 @@ pub enum ReconstructError {
     Input { pod: String, msg: String },
 }
 
-/// What [`reconstruct`] makes: a point cloud with normals, or (`as_mesh`) every pod's
-/// triangulated depth grid in one mesh with holes.
+/// A capture's pods to one scan in the rig frame: a point cloud with normals ([`fuse`]),
+/// or (`as_mesh`) every pod's triangulated depth grid in one mesh with holes
+/// ([`fuse_meshes`]). Each pod's rectification comes from `cache`; with a working volume
+/// and `o.auto_disparity_range`, each pod searches only the volume's disparities.
 pub fn reconstruct(
     pods: &[PodImages],
     cache: &mut RectifierCache,
