@@ -5,9 +5,7 @@
 //! depth discontinuities into one mesh with holes.
 
 use super::calib::Pod;
-use super::disparity::{
-    SgbmOptions, disparity_mats, gray_mat, pixel_grids, refine_subpixel, to_pixels,
-};
+use super::disparity::{SgbmOptions, disparity_mats, gray_mat, pixel_grids, refine_subpixel};
 use crate::mesh::{Mesh, V3, keep_triangles, topology};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use opencv::calib3d;
@@ -310,20 +308,16 @@ impl RectifierCache {
     }
 }
 
-/// FNV-1a over the pod's id and every number of its calibration and pose.
+/// A hash of the pod's id and every number of its calibration and pose (a key for this
+/// process's cache, not stored anywhere).
 fn pod_fingerprint(pod: &Pod) -> u64 {
-    let mut h = 0xcbf2_9ce4_8422_2325u64;
-    let mut eat = |bytes: &[u8]| {
-        for b in bytes {
-            h = (h ^ *b as u64).wrapping_mul(0x100_0000_01b3);
-        }
-    };
-    eat(pod.id.as_bytes());
+    use std::hash::{Hash, Hasher};
+    let mut h = std::hash::DefaultHasher::new();
+    pod.id.hash(&mut h);
     for k in [&pod.left, &pod.right] {
-        eat(&k.width.to_le_bytes());
-        eat(&k.height.to_le_bytes());
+        (k.width, k.height).hash(&mut h);
         for v in [k.fx, k.fy, k.cx, k.cy].iter().chain(&k.dist) {
-            eat(&v.to_le_bytes());
+            v.to_bits().hash(&mut h);
         }
     }
     let nums = pod
@@ -333,9 +327,9 @@ fn pod_fingerprint(pod: &Pod) -> u64 {
         .chain(pod.left_pose.r.iter())
         .chain(pod.left_pose.t.iter());
     for v in nums {
-        eat(&v.to_le_bytes());
+        v.to_bits().hash(&mut h);
     }
-    h
+    h.finish()
 }
 
 /// What one pod saw: a point in the rig frame for every pixel of the rectified left
@@ -464,17 +458,18 @@ pub fn pod_grid(
     let disp = disparity_mats(&lr, &rr, o)?;
     report.seconds_disparity = t1.elapsed().as_secs_f64();
     let t2 = Instant::now();
-    let px = to_pixels(&disp, o.min_disparity)?;
-    report.valid_disparity_share = px.valid_share();
+    // pixels; SGBM marks the unmatched min_disparity - 1
     let mut dispf = Mat::default();
     disp.convert_to(&mut dispf, core::CV_32F, 1.0 / 16.0, 0.0)?;
+    let refined_own;
     let refined = if o.subpixel_steps > 0 {
-        refine_subpixel(&lr, &rr, &dispf, &rectifier.grids, o)?
+        refined_own = refine_subpixel(&lr, &rr, &dispf, &rectifier.grids, o)?;
+        &refined_own
     } else {
-        dispf.try_clone()?
+        &dispf
     };
     let mut xyz = Mat::default();
-    calib3d::reproject_image_to_3d(&refined, &mut xyz, &rectifier.rect.q, true, core::CV_32F)?;
+    calib3d::reproject_image_to_3d(refined, &mut xyz, &rectifier.rect.q, true, core::CV_32F)?;
     let pts = xyz.data_typed::<core::Vec3f>()?;
     // texture mask: local standard deviation of the rectified left image
     let mut lf = Mat::default();
@@ -537,14 +532,17 @@ pub fn pod_grid(
     let min_var = (o.min_contrast * o.min_contrast) as f32;
     let (rot, shift) = (rectifier.rot, rectifier.shift);
     let invalid = [f32::NAN; 3];
-    let mut count = 0;
+    let (mut count, mut matched) = (0, 0);
+    let first = o.min_disparity as f32;
     let points: Vec<[f32; 3]> = pts
         .iter()
         .enumerate()
         .map(|(i, p)| {
-            let d = px.values[i];
-            if !d.is_finite()
-                || d <= o.min_disparity as f32
+            let d = before[i];
+            if d > first - 1.0 {
+                matched += 1;
+            }
+            if !(d > first)
                 || m2[i] - m[i] * m[i] < min_var
                 || spread.get(i).is_some_and(|s| *s > max_jump)
                 || (after[i] - before[i]).abs() > 1.0
@@ -561,6 +559,7 @@ pub fn pod_grid(
         })
         .collect();
     report.points = count;
+    report.valid_disparity_share = matched as f64 / pts.len().max(1) as f64;
     report.seconds_own = own_start.elapsed().as_secs_f64() + own_copies;
     report.seconds_reproject = t2.elapsed().as_secs_f64();
     Ok(DepthGrid {
