@@ -265,10 +265,10 @@ pub fn demo(
                 ..Default::default()
             },
         );
-        let mut png = Vec::new();
-        img.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
-            .expect("encoding a PNG in memory");
-        put(&format!("preview-{name}.png"), &png)?;
+        put(
+            &format!("preview-{name}.png"),
+            &crate::render::png_bytes(&img),
+        )?;
         let f = cases::box_figures(&r.mesh);
         methods.push(DemoFigures {
             method,

@@ -93,13 +93,7 @@ fn write_simulated_set(
     for (pod, side, width, height, pixels) in images {
         let file = format!("{pod}-{side}.png");
         let img = image::GrayImage::from_raw(width, height, pixels).expect("sized");
-        let mut bytes = Vec::new();
-        img.write_to(
-            &mut std::io::Cursor::new(&mut bytes),
-            image::ImageFormat::Png,
-        )
-        .expect("in-memory PNG");
-        write_atomic(&partial.join(&file), &bytes)?;
+        crate::render::save_png(&img, &partial.join(&file))?;
         cameras.push(CameraRecord {
             id: format!("{pod}-{side}"),
             pod,
@@ -537,10 +531,7 @@ pub fn disparity(
             .collect();
         let img = image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_raw(d.width, d.height, px)
             .expect("sized");
-        let mut b = Vec::new();
-        img.write_to(&mut std::io::Cursor::new(&mut b), image::ImageFormat::Png)
-            .expect("in-memory PNG");
-        b
+        crate::render::png_bytes(&img)
     } else {
         d.pfm()
     };
@@ -581,13 +572,7 @@ pub fn simulate_chessboard(
                 let px = render_chessboard(pod, right, &cb, b, 1.0, k as u64);
                 let img =
                     image::GrayImage::from_raw(pod.left.width, pod.left.height, px).expect("sized");
-                let mut bytes = Vec::new();
-                img.write_to(
-                    &mut std::io::Cursor::new(&mut bytes),
-                    image::ImageFormat::Png,
-                )
-                .expect("in-memory PNG");
-                write_atomic(&dir.join(format!("{name}{k:02}.png")), &bytes)?;
+                crate::render::save_png(&img, &dir.join(format!("{name}{k:02}.png")))?;
             }
         }
         write_atomic(&dir.join("truth.yml"), pod.opencv_yaml().as_bytes())?;

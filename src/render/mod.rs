@@ -275,15 +275,31 @@ fn draw_colour_bar(img: &mut RgbImage, x0: u32, w: u32, h: u32, min: f64, max: f
     font::draw(img, bx0, bottom + 8, unit, [30, 30, 30], 2);
 }
 
-/// Writes an image as PNG, atomically.
-pub fn save_png(img: &RgbImage, path: &std::path::Path) -> Result<(), crate::mesh::FileError> {
+/// An image (grey, 16-bit grey or colour) encoded as PNG in memory.
+pub fn png_bytes<P>(img: &image::ImageBuffer<P, Vec<P::Subpixel>>) -> Vec<u8>
+where
+    P: image::PixelWithColorType,
+    [P::Subpixel]: image::EncodableLayout,
+{
     let mut bytes = Vec::new();
     img.write_to(
         &mut std::io::Cursor::new(&mut bytes),
         image::ImageFormat::Png,
     )
-    .map_err(|e| crate::mesh::FileError::content(&path.display().to_string(), e.to_string()))?;
-    crate::mesh::io::write_atomic(path, &bytes)
+    .expect("PNG encodes 8- and 16-bit grey and colour buffers in memory");
+    bytes
+}
+
+/// Writes an image as PNG, atomically.
+pub fn save_png<P>(
+    img: &image::ImageBuffer<P, Vec<P::Subpixel>>,
+    path: &std::path::Path,
+) -> Result<(), crate::mesh::FileError>
+where
+    P: image::PixelWithColorType,
+    [P::Subpixel]: image::EncodableLayout,
+{
+    crate::mesh::io::write_atomic(path, &png_bytes(img))
 }
 
 /// Places images in a grid (row-major), each cell the size of the first image; an
