@@ -5,7 +5,7 @@ APT_PACKAGES := libopencv-dev clang libclang-dev pkg-config libudev-dev
 CARGO ?= cargo
 DEMO_OUT ?= demo-output
 
-.PHONY: all deps build test test-fast demo bench clean
+.PHONY: all deps build lint test demo bench clean
 
 all: build
 
@@ -26,14 +26,16 @@ deps:
 build: deps
 	$(CARGO) build --locked --release
 
-# Every test in a debug build (debug assertions on; the heavy known-answer tests are
-# listed as ignored there), then every test in release, where the heavy ones run.
-test: deps
-	$(CARGO) test --locked
-	$(CARGO) test --locked --release
+# Formatting and clippy (warnings are errors), on the same profile as the tests so the
+# dependencies are checked once.
+lint: deps
+	$(CARGO) fmt --check
+	$(CARGO) clippy --locked --profile ci --all-targets -- -D warnings
 
-test-fast: deps
-	$(CARGO) test --locked
+# Lint, then every test, compiled once: the `ci` profile optimises (the known-answer
+# tests are heavy) and keeps debug assertions and overflow checks on.
+test: lint
+	$(CARGO) test --locked --profile ci
 
 demo: deps
 	$(CARGO) run --locked --release -- demo --out $(DEMO_OUT)

@@ -5,7 +5,7 @@
 
 use conformd::model::{BuildOptions, ShapeModel};
 use conformd::render::{Colouring, RenderOptions, render};
-use conformd::synth::templates::{self, Kind};
+use conformd::template::{self as templates, Kind};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use std::collections::BTreeMap;

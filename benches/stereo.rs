@@ -1,5 +1,5 @@
-//! Stereo speed (issue 4's targets): one pod pair of 1280x960 images, rectify + disparity
-//! + reproject, with conformd's own share (everything but the OpenCV calls); and a 4-pod
+//! Stereo speed (issue 4's targets): one pod pair of 1280x960 images, rectify, disparity
+//! and reproject, with conformd's own share (everything but the OpenCV calls); and a 4-pod
 //! capture to a fused scan or a mesh; first captures (rectification maps built) apart from
 //! later ones (maps cached). The captures are rendered by the virtual rig. Run:
 //! `cargo bench --bench stereo`.
@@ -8,8 +8,9 @@ use conformd::stereo::reconstruct::{
     PodImages, PodReport, ReconstructOptions, ReconstructReport, RectifierCache, pod_grid,
     reconstruct,
 };
-use conformd::synth::rig::{PodSpec, RigFile, render_rig};
-use conformd::synth::templates::{self, Kind};
+use conformd::stereo::rig::{PodSpec, RigFile};
+use conformd::synth::rig::render_rig;
+use conformd::template::{self as templates, Kind};
 use std::time::Instant;
 
 fn median(mut t: Vec<f64>) -> f64 {

@@ -1,13 +1,16 @@
-//! conformd: the software of a photogrammetry capture station. Reads and writes meshes,
-//! conforms a generic template mesh onto scans (Ju et al. 2004, improved), and makes
-//! synthetic subjects with ground truth for tests and demos. See DESIGN.md for the data
-//! path and the layout.
+//! conformd: the software of a photogrammetry capture station: stereo reconstruction of
+//! capture sets, conformation of a generic template mesh onto every scan (Ju et al. 2004,
+//! improved), shape models, and the station pipeline that runs them per capture.
+//! `ARCHITECTURE.md` has the data path and what each module owns.
 
 pub mod conform;
 pub mod jobs;
 pub mod mesh;
 pub mod model;
+pub mod paths;
 pub mod render;
 pub mod rig;
+pub mod station;
 pub mod stereo;
 pub mod synth;
+pub mod template;

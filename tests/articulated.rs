@@ -2,8 +2,7 @@
 //! whose whole is bent, twisted and scaled, seen from three viewpoints, resampled as a
 //! noisy point cloud; the template's vertices have a known true place on it.
 //!
-//! Heavy: runs in release builds (`make test` does); a debug `cargo test` lists it as
-//! ignored.
+//! Heavy: run it optimised, as `make test` does (`--profile ci`).
 
 mod common;
 
@@ -20,7 +19,6 @@ fn errors(case: &cases::Case, r: &conformd::conform::Conformed) -> cases::Corres
 }
 
 #[test]
-#[cfg_attr(debug_assertions, ignore = "heavy: runs in release builds")]
 fn with_landmarks_default_beats_the_paper() {
     let case = cases::articulated(&ArticulatedSpec {
         template_vertices: 8000,
@@ -77,7 +75,6 @@ fn with_landmarks_default_beats_the_paper() {
 }
 
 #[test]
-#[cfg_attr(debug_assertions, ignore = "heavy: runs in release builds")]
 fn without_landmarks_turned_and_shifted() {
     let case = cases::articulated(&ArticulatedSpec {
         template_vertices: 8000,
@@ -111,7 +108,6 @@ fn without_landmarks_turned_and_shifted() {
 }
 
 #[test]
-#[cfg_attr(debug_assertions, ignore = "heavy: runs in release builds")]
 fn stiffer_groups_keep_their_shape() {
     // The paper's section 3.2 remedy: a larger spring constant for parts that should not
     // distort (ears, hands, feet).

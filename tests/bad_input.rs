@@ -351,8 +351,10 @@ fn empty_or_tiny_scans_and_bad_templates() {
 #[test]
 fn bad_options_are_named() {
     let sphere = icosphere(1);
-    let mut o = ConformOptions::default();
-    o.max_distance = -1.0;
+    let o = ConformOptions {
+        max_distance: -1.0,
+        ..Default::default()
+    };
     let e = err_of(conform(&sphere, &sphere, None, &o, &mut |_| {}));
     assert!(e.contains("max_distance") && e.contains("-1"), "{e}");
     let mut o = ConformOptions::default();

@@ -1,10 +1,10 @@
-//! Stereo calibration from simulated chessboard views (release builds): focal lengths and
+//! Stereo calibration from simulated chessboard views: focal lengths and
 //! baseline recovered within 0.5%, RMS reprojection error below 0.3 px.
 
-use conformd::synth::rig::{Chessboard, RigFile, chessboard_poses, render_chessboard};
+use conformd::stereo::rig::RigFile;
+use conformd::synth::rig::{Chessboard, chessboard_poses, render_chessboard};
 
 #[test]
-#[cfg_attr(debug_assertions, ignore = "heavy: runs in release builds")]
 fn calibration_recovers_focal_length_and_baseline() {
     let mut rig: RigFile = toml::from_str(
         &std::fs::read_to_string(concat!(
@@ -73,7 +73,6 @@ fn calibration_recovers_focal_length_and_baseline() {
 /// and its axes within 0.1 deg of the truth; the reconstruction with the measured poses
 /// stays within issue 4's accuracy bounds.
 #[test]
-#[cfg_attr(debug_assertions, ignore = "heavy: runs in release builds")]
 fn placement_finds_pod_poses_in_the_rig_frame() {
     use conformd::mesh::read_mesh;
     use conformd::stereo::calibrate::BoardPlacement;

@@ -145,7 +145,9 @@ impl Trigger for RefusingBox {
 
 #[test]
 fn every_fault_leaves_nothing_half_written_and_says_why() {
-    let cases: Vec<(&str, Vec<(usize, usize, Fault)>, &str)> = vec![
+    // (name, faults as (camera, capture, fault), expected words)
+    type Case = (&'static str, Vec<(usize, usize, Fault)>, &'static str);
+    let cases: Vec<Case> = vec![
         (
             "timeout",
             vec![(2, 0, Fault::Timeout)],

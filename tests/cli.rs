@@ -529,10 +529,8 @@ fn example_station_config_loads() {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/station.example.toml");
     let opts = conformd::jobs::load_conform_options(&path).expect("options load");
     assert_eq!(opts.stiffness.get("ears"), Some(&5.0));
-    let src = conformd::jobs::TemplateSource::from_config(&path)
-        .unwrap()
-        .expect("has [template]");
-    assert_eq!(src.generic, Some(conformd::synth::templates::Kind::Pig));
+    let src = conformd::jobs::template_from_config(&path).expect("has [template]");
+    assert_eq!(src.generic, Some(conformd::template::Kind::Pig));
     assert_eq!(src.vertices, Some(10_000));
 }
 
@@ -541,7 +539,7 @@ fn example_station_config_loads() {
 /// a malformed `--board-origin` or a missing `--rig` is refused in one line.
 #[test]
 fn placement_through_the_cli() {
-    use conformd::synth::rig::RigFile;
+    use conformd::stereo::rig::RigFile;
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let mut rig: RigFile = toml::from_str(

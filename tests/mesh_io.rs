@@ -39,7 +39,7 @@ fn meshes_and_point_clouds_round_trip() {
 
 #[test]
 fn obj_keeps_triangle_order_and_groups() {
-    let fig = conformd::synth::templates::build(conformd::synth::templates::Kind::Pig, 2000);
+    let fig = conformd::template::build(conformd::template::Kind::Pig, 2000);
     let back = conformd::mesh::io::read_obj_bytes(
         "t.obj",
         conformd::mesh::io::obj_bytes(&fig.mesh).as_bytes(),

@@ -2,7 +2,7 @@
 //! flat silhouette), in the colours asked for; the CLI writes a PNG that decodes.
 
 use conformd::render::{Colouring, RenderOptions, View, colour_map, render};
-use conformd::synth::templates::{self, Kind};
+use conformd::template::{self as templates, Kind};
 
 fn coverage(img: &image::RgbImage, bg: [u8; 3]) -> (f64, f64) {
     let px: Vec<&image::Rgb<u8>> = img.pixels().filter(|p| p.0 != bg).collect();

@@ -6,7 +6,7 @@ use conformd::mesh::landmarks::{Landmark, LandmarkPos};
 use conformd::mesh::{Mesh, V3};
 use conformd::model::{Align, BuildOptions, ShapeModel, quality};
 use conformd::synth::cases;
-use conformd::synth::templates::{self, Kind};
+use conformd::template::{self as templates, Kind};
 use nalgebra::DMatrix;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -23,7 +23,6 @@ fn corr(a: &[f64], b: &[f64]) -> f64 {
 }
 
 #[test]
-#[cfg_attr(debug_assertions, ignore = "heavy: runs in release builds")]
 fn pig_postures_are_recovered_through_scanning_and_conformation() {
     let kind = Kind::Pig;
     let fig = templates::build(kind, 4000);
@@ -34,9 +33,8 @@ fn pig_postures_are_recovered_through_scanning_and_conformation() {
     let mut truth: Vec<[f64; 3]> = Vec::new();
     let mut samples = Vec::new();
     let mut errors = Vec::new();
-    for i in 0..12 {
+    for (i, &angles) in design.iter().enumerate() {
         let mut p = BTreeMap::new();
-        let angles = design[i];
         for (n, a) in names.iter().zip(angles) {
             p.insert(n.to_string(), a);
         }

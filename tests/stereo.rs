@@ -1,4 +1,4 @@
-//! Stereo reconstruction on simulated captures (release builds): a two-pod capture of a
+//! Stereo reconstruction on simulated captures: a two-pod capture of a
 //! pig reconstructs a scan close to the true surface that covers what the cameras see;
 //! conformed with the template, it gives dense correspondence against the ground truth.
 
@@ -6,12 +6,12 @@ use conformd::conform::correspond::ScanSurface;
 use conformd::conform::{ConformOptions, conform};
 use conformd::mesh::landmarks::{Landmark, LandmarkPos};
 use conformd::mesh::{Mesh, V3, read_mesh};
-use conformd::synth::rig::RigFile;
-use conformd::synth::{scanner, templates};
+use conformd::stereo::rig::RigFile;
+use conformd::synth::scanner;
+use conformd::template as templates;
 use std::path::Path;
 
 #[test]
-#[cfg_attr(debug_assertions, ignore = "heavy: runs in release builds")]
 fn simulate_reconstruct_conform() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
@@ -142,7 +142,6 @@ fn conform_error(scan: &Mesh, truth: &Mesh) -> f64 {
 }
 
 #[test]
-#[cfg_attr(debug_assertions, ignore = "heavy: runs in release builds")]
 fn reconstruct_mesh_cuts_depth_jumps_and_conforms() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
@@ -153,10 +152,11 @@ fn reconstruct_mesh_cuts_depth_jumps_and_conforms() {
             .unwrap();
     let truth = read_mesh(&sets[0].join("truth.ply")).unwrap();
     let mut station =
-        conformd::jobs::Reconstruction::load(&rig_path, Some(&d.join("sim/calibration"))).unwrap();
-    let report = station
-        .run(&sets[0], &d.join("scan.ply"), None, true)
-        .unwrap();
+        conformd::stereo::rig::Reconstruction::load(&rig_path, Some(&d.join("sim/calibration")))
+            .unwrap();
+    let report =
+        conformd::jobs::reconstruct_with(&mut station, &sets[0], &d.join("scan.ply"), None, true)
+            .unwrap();
     let scan = read_mesh(&d.join("scan.ply")).unwrap();
     assert_eq!(scan.triangles.len(), report.triangles);
     let topo = conformd::mesh::topology::report(&scan);
@@ -179,14 +179,13 @@ fn reconstruct_mesh_cuts_depth_jumps_and_conforms() {
     // the cut at work: with the edge margin off, SGBM keeps pixels right up to a depth
     // jump, and grids joined without the cut bridge it (the maps come from the cache)
     station.options.sgbm.edge_margin = 0;
-    station
-        .run(&sets[0], &d.join("margin0.ply"), None, true)
+    conformd::jobs::reconstruct_with(&mut station, &sets[0], &d.join("margin0.ply"), None, true)
         .unwrap();
     let cut_only = bridges(&read_mesh(&d.join("margin0.ply")).unwrap());
     station.options.mesh.depth_cut = f64::INFINITY;
-    let r2 = station
-        .run(&sets[0], &d.join("uncut.ply"), None, true)
-        .unwrap();
+    let r2 =
+        conformd::jobs::reconstruct_with(&mut station, &sets[0], &d.join("uncut.ply"), None, true)
+            .unwrap();
     assert!(
         r2.pods.iter().all(|p| p.maps_reused),
         "second capture reuses the maps"
@@ -318,12 +317,12 @@ fn reconstruct_names_missing_and_mismatched_images() {
     );
     // the calibration simulate wrote belongs to this rig and is taken
     let cal = d.join("sim/calibration");
-    conformd::jobs::Reconstruction::load(&rig_path, Some(&cal)).unwrap();
+    conformd::stereo::rig::Reconstruction::load(&rig_path, Some(&cal)).unwrap();
     // calibrations from elsewhere are refused, naming the file and what does not fit
     let good = std::fs::read_to_string(cal.join("pod1.yml")).unwrap();
     let refused = |yaml: &str| -> String {
         std::fs::write(cal.join("pod1.yml"), yaml).unwrap();
-        let e = match conformd::jobs::Reconstruction::load(&rig_path, Some(&cal)) {
+        let e = match conformd::stereo::rig::Reconstruction::load(&rig_path, Some(&cal)) {
             Err(e) => e.to_string(),
             Ok(_) => panic!("taken: {yaml}"),
         };
@@ -426,7 +425,6 @@ fn reconstruct_names_missing_and_mismatched_images() {
 /// noise (standard deviation about the true plane) falls by at least 30% against SGBM's
 /// own interpolation, with no bias over 1 mm.
 #[test]
-#[cfg_attr(debug_assertions, ignore = "heavy: runs in release builds")]
 fn subpixel_refinement_cuts_depth_noise_on_a_wall() {
     use conformd::stereo::disparity::SgbmOptions;
     use conformd::stereo::reconstruct::{PodReport, RectifierCache, pod_grid};
@@ -474,7 +472,6 @@ fn subpixel_refinement_cuts_depth_noise_on_a_wall() {
 /// each pod's disparity range from the working volume keeps the scan whole; the fixed
 /// range loses the near side.
 #[test]
-#[cfg_attr(debug_assertions, ignore = "heavy: runs in release builds")]
 fn disparity_range_follows_the_working_volume() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
@@ -490,12 +487,13 @@ fn disparity_range_follows_the_working_volume() {
     std::fs::write(&rig_path, toml::to_string(&rig).unwrap()).unwrap();
     let sets = conformd::jobs::simulate(&rig_path, "pig", "", 1, 2.0, &d.join("sim")).unwrap();
     let truth = read_mesh(&sets[0].join("truth.ply")).unwrap();
-    let mut station = conformd::jobs::Reconstruction::load(&rig_path, None).unwrap();
+    let mut station = conformd::stereo::rig::Reconstruction::load(&rig_path, None).unwrap();
     let mut figures = Vec::new();
     for auto in [true, false] {
         station.options.auto_disparity_range = auto;
         let out = d.join(format!("scan-{auto}.ply"));
-        let r = station.run(&sets[0], &out, None, false).unwrap();
+        let r =
+            conformd::jobs::reconstruct_with(&mut station, &sets[0], &out, None, false).unwrap();
         let scan = read_mesh(&out).unwrap();
         let (mean, p95) = accuracy(&scan, &truth);
         let cov = coverage(&scan, &truth, &rig_path);
@@ -541,15 +539,19 @@ fn rig_file_reconstruct_settings() {
         p
     };
     let p = write("[reconstruct]\nvoxel = 0.01\n[reconstruct.sgbm]\nblock_size = 7\n");
-    let station = conformd::jobs::Reconstruction::load(&p, None).unwrap();
+    let station = conformd::stereo::rig::Reconstruction::load(&p, None).unwrap();
     assert_eq!(station.options.voxel, 0.01);
     assert_eq!(station.options.sgbm.block_size, 7);
     assert_eq!(station.options.working_volume, station.rig.working_volume);
-    let e = RigFile::load(&write("[reconstruct.sgbm]\nblock_size = 4\n")).unwrap_err();
+    let e = RigFile::load(&write("[reconstruct.sgbm]\nblock_size = 4\n"))
+        .unwrap_err()
+        .to_string();
     assert!(
         e.contains("rig.toml") && e.contains("[reconstruct.sgbm]") && e.contains("block_size"),
         "{e}"
     );
-    let e = RigFile::load(&write("[reconstruct]\nvoxels = 0.01\n")).unwrap_err();
+    let e = RigFile::load(&write("[reconstruct]\nvoxels = 0.01\n"))
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("rig.toml") && e.contains("voxels"), "{e}");
 }

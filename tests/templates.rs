@@ -4,7 +4,7 @@
 
 use conformd::mesh::landmarks::LandmarkPos;
 use conformd::mesh::topology;
-use conformd::synth::templates::{self, Kind};
+use conformd::template::{self as templates, Kind};
 use std::collections::BTreeMap;
 
 fn check(kind: Kind, n: usize) {
@@ -82,7 +82,6 @@ fn templates_at_5000() {
 }
 
 #[test]
-#[cfg_attr(debug_assertions, ignore = "heavy: runs in release builds")]
 fn templates_at_50000() {
     check(Kind::Pig, 50_000);
     check(Kind::Body, 50_000);

@@ -206,12 +206,9 @@ fn the_link_reconnects_when_the_device_comes_back() {
     let start = std::time::Instant::now();
     let mut fired = false;
     while start.elapsed() < Duration::from_secs(10) {
-        match link.with(|b| b.fire(3, 8000)) {
-            Ok(_) => {
-                fired = true;
-                break;
-            }
-            Err(_) => {}
+        if link.with(|b| b.fire(3, 8000)).is_ok() {
+            fired = true;
+            break;
         }
         std::thread::sleep(Duration::from_millis(20));
     }

@@ -2,8 +2,9 @@
 //! point looks the same in both cameras of a pod, at the place the calibration predicts
 //! (lens distortion included); and `conformd simulate` writes standard capture sets.
 
-use conformd::synth::rig::{RigFile, render_camera};
-use conformd::synth::templates::{self, Kind};
+use conformd::stereo::rig::RigFile;
+use conformd::synth::rig::render_camera;
+use conformd::template::{self as templates, Kind};
 
 fn rig() -> RigFile {
     let mut r: RigFile = toml::from_str(

@@ -33,7 +33,7 @@ pub struct MatchLimits {
 
 enum Index {
     Mesh {
-        tri: TriMesh,
+        tri: Box<TriMesh>,
         face_normals: Vec<V3>,
         vertex_normals: Vec<V3>,
         boundary_vertex: Vec<bool>,
@@ -120,7 +120,7 @@ impl ScanSurface {
                 }
             }
             Index::Mesh {
-                tri,
+                tri: Box::new(tri),
                 face_normals,
                 vertex_normals: scan.vertex_normals(),
                 boundary_vertex: topology::boundary_vertices(points.len(), &scan.triangles),

@@ -145,7 +145,7 @@ impl<'a> Fit<'a> {
 
     /// The fine iterations (sections 2.2-2.3): match, fill, solve, until the largest
     /// update falls below the tolerance once epsilon has reached its end. Returns the
-    /// per-iteration reports and whether it converged.
+    /// per-iteration reports and whether it converged. Stops early once `cancel` is set.
     pub fn iterate(
         &mut self,
         x: &mut Vec<V3>,
@@ -153,9 +153,13 @@ impl<'a> Fit<'a> {
         opts: &ConformOptions,
         times: &mut StageTimes,
         progress: &mut dyn FnMut(&IterationReport),
+        cancel: &std::sync::atomic::AtomicBool,
     ) -> (Vec<IterationReport>, bool) {
         let mut reports: Vec<IterationReport> = Vec::new();
         for it in 0..opts.max_iterations {
+            if cancel.load(std::sync::atomic::Ordering::Relaxed) {
+                break;
+            }
             let t_it = Instant::now();
             let eps = opts.schedule(it, opts.epsilon_start, opts.epsilon_end);
             let limits = MatchLimits {

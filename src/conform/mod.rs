@@ -286,6 +286,8 @@ pub enum ConformError {
     Rbf(#[from] rbf::RbfError),
     #[error("options: {0}")]
     Options(String),
+    #[error("cancelled")]
+    Cancelled,
 }
 
 /// The figures of one iteration (the paper's section 3.1, plus fit figures).
@@ -357,6 +359,35 @@ pub struct ConformReport {
     pub watertight_template: bool,
     pub watertight_result: bool,
     pub seconds: StageTimes,
+}
+
+impl std::fmt::Display for ConformReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        writeln!(
+            f,
+            "conformed {} vertices onto {} scan points in {} iterations, {:.2} s ({} method{})",
+            self.template_vertices,
+            self.scan_points,
+            self.iterations.len(),
+            self.seconds.total,
+            format!("{:?}", self.method).to_lowercase(),
+            if self.converged {
+                ""
+            } else {
+                ", iteration limit reached"
+            }
+        )?;
+        write!(
+            f,
+            "mean distance to the scan {:.3e} ({:.3}% of the diagonal); {} vertices matched, {} filled; {} folded triangles; watertight {}",
+            self.mean_distance,
+            self.mean_distance_relative * 100.0,
+            self.matched,
+            self.filled,
+            self.folded_triangles,
+            self.watertight_result
+        )
+    }
 }
 
 /// A conformed mesh and its report.
@@ -456,6 +487,21 @@ pub fn conform(
     opts: &ConformOptions,
     progress: &mut dyn FnMut(&IterationReport),
 ) -> Result<Conformed, ConformError> {
+    let never = std::sync::atomic::AtomicBool::new(false);
+    conform_cancellable(template, scan, landmarks, opts, progress, &never)
+}
+
+/// [`conform`] that a service can stop: `cancel` is read between stages and iterations,
+/// and once it is set the call returns [`ConformError::Cancelled`] within one iteration.
+pub fn conform_cancellable(
+    template: &Mesh,
+    scan: &Mesh,
+    landmarks: Option<(&[Landmark], &[Landmark])>,
+    opts: &ConformOptions,
+    progress: &mut dyn FnMut(&IterationReport),
+    cancel: &std::sync::atomic::AtomicBool,
+) -> Result<Conformed, ConformError> {
+    let cancelled = || cancel.load(std::sync::atomic::Ordering::Relaxed);
     let t_start = Instant::now();
     opts.validate()?;
     if template.triangles.is_empty() {
@@ -500,8 +546,18 @@ pub fn conform(
 
     // 2-4. The elastic fit: coarse stage, then the iterations.
     let mut fit = fit::Fit::new(template, &x, &global_sim, pairs.as_ref(), opts);
+    if cancelled() {
+        return Err(ConformError::Cancelled);
+    }
     times.coarse = fit.coarse(&mut x, &surface, pairs.is_some(), opts);
-    let (mut reports, converged) = fit.iterate(&mut x, &surface, opts, &mut times, progress);
+    if cancelled() {
+        return Err(ConformError::Cancelled);
+    }
+    let (mut reports, converged) =
+        fit.iterate(&mut x, &surface, opts, &mut times, progress, cancel);
+    if cancelled() {
+        return Err(ConformError::Cancelled);
+    }
     let diag = fit.diag;
 
     // The distance of the final result to the scan.

@@ -82,8 +82,8 @@ pub fn fit(names: &[String], src: &[V3], dst: &[V3], smoothing: f64) -> Result<R
     let mut sol = DMatrix::<f64>::zeros(m, 3);
     for k in 0..3 {
         let mut rhs = DVector::<f64>::zeros(m);
-        for i in 0..n {
-            rhs[i] = dst[i][k];
+        for (r, d) in rhs.iter_mut().zip(dst) {
+            *r = d[k];
         }
         let x = svd
             .solve(&rhs, smax * 1e-10)

@@ -8,19 +8,13 @@ use crate::synth::cases;
 use std::path::{Path, PathBuf};
 
 /// Reads conformation options from a TOML file: either a whole `conform.toml`, or a
-/// station config whose `[conform]` table holds them. Unknown keys are errors.
+/// station file whose `[conform]` table holds them. Unknown keys are errors.
 pub fn load_conform_options(path: &Path) -> Result<ConformOptions, JobError> {
     let name = path.display().to_string();
     let table = read_toml(path)?;
-    // a station config holds sections; a conform.toml holds the options themselves
-    const STATION_SECTIONS: [&str; 8] = [
-        "template", "station", "rig", "capture", "trigger", "cameras", "daemon", "model",
-    ];
-    let table = match table.get("conform") {
-        Some(toml::Value::Table(t)) => t.clone(),
-        _ if STATION_SECTIONS.iter().any(|k| table.contains_key(*k)) => toml::Table::new(),
-        _ => table,
-    };
+    if crate::station::config::is_station_file(&table) {
+        return Ok(crate::station::StationConfig::load(path)?.conform);
+    }
     let opts: ConformOptions = table
         .try_into()
         .map_err(|e: toml::de::Error| JobError::Config {
@@ -34,74 +28,41 @@ pub fn load_conform_options(path: &Path) -> Result<ConformOptions, JobError> {
     Ok(opts)
 }
 
-/// Where a station's template comes from: a generic one (`pig`, `body`) built at a
-/// resolution, or any user mesh with its landmark file and optional groups file (the
-/// paper: "one of the 3D shape samples can serve as a generic mesh directly").
-/// In a config: `[template]` with `generic = "pig"` and `vertices = 10000`, or
-/// `mesh = "..."`, `landmarks = "..."`, `groups = "..."`.
-#[derive(Debug, Clone, Default, serde::Serialize, serde::Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct TemplateSource {
-    pub generic: Option<crate::synth::templates::Kind>,
-    pub vertices: Option<usize>,
-    pub mesh: Option<PathBuf>,
-    pub landmarks: Option<PathBuf>,
-    pub groups: Option<PathBuf>,
+/// Conformation options from `config` (a `conform.toml` or a station file) or the
+/// defaults, with `method` overriding: `paper` without a config means the paper's preset.
+pub fn conform_options(
+    config: Option<&Path>,
+    method: Option<Method>,
+) -> Result<ConformOptions, JobError> {
+    let mut opts = match config {
+        Some(p) => load_conform_options(p)?,
+        None => ConformOptions::default(),
+    };
+    if let Some(m) = method {
+        if config.is_none() && m == Method::Paper {
+            opts = ConformOptions::paper();
+        }
+        opts.method = m;
+    }
+    Ok(opts)
 }
 
-impl TemplateSource {
-    /// Reads the `[template]` table of a config file; relative paths are taken from the
-    /// config file's folder.
-    pub fn from_config(path: &Path) -> Result<Option<TemplateSource>, JobError> {
-        let name = path.display().to_string();
-        let table = read_toml(path)?;
-        let Some(t) = table.get("template") else {
-            return Ok(None);
-        };
-        let mut src: TemplateSource =
-            t.clone()
-                .try_into()
-                .map_err(|e: toml::de::Error| JobError::Config {
-                    path: name.clone(),
-                    msg: format!("[template]: {e}"),
-                })?;
-        let base = path.parent().unwrap_or(Path::new("."));
-        for p in [&mut src.mesh, &mut src.landmarks, &mut src.groups]
-            .into_iter()
-            .flatten()
-        {
-            if p.is_relative() {
-                *p = base.join(&*p);
-            }
-        }
-        Ok(Some(src))
-    }
-
-    /// The template mesh (with groups) and its landmarks, if it has any.
-    pub fn load(&self) -> Result<(Mesh, Option<Vec<mesh::Landmark>>), JobError> {
-        match (&self.generic, &self.mesh) {
-            (Some(kind), None) => {
-                let fig = crate::synth::templates::build(*kind, self.vertices.unwrap_or(10_000));
-                let lms = fig.landmarks();
-                Ok((fig.mesh, Some(lms)))
-            }
-            (None, Some(path)) => {
-                let mut m = mesh::read_mesh(path)?;
-                if let Some(g) = &self.groups {
-                    mesh::groups::read_into(g, &mut m)?;
-                }
-                let lms = self.landmarks.as_ref().map(|p| mesh::read_landmarks(p)).transpose()?;
-                Ok((m, lms))
-            }
-            _ => Err(JobError::Usage("[template] needs either generic = \"pig\" or \"body\", or mesh = \"FILE\" (not both)".into())),
-        }
-    }
+/// The `[template]` of a station file.
+pub fn template_from_config(path: &Path) -> Result<crate::template::TemplateSource, JobError> {
+    crate::station::StationConfig::load(path)?
+        .template
+        .ok_or_else(|| {
+            JobError::Usage(format!(
+                "{}: no [template] table, and no template named",
+                path.display()
+            ))
+        })
 }
 
 /// The files of one conformation.
 #[derive(Debug, Clone)]
 pub struct ConformFiles {
-    pub template: TemplateSource,
+    pub template: crate::template::TemplateSource,
     pub scan: PathBuf,
     pub template_landmarks: Option<PathBuf>,
     pub scan_landmarks: Option<PathBuf>,
@@ -143,7 +104,7 @@ pub fn conform_files(
         (_, None) => None,
         (None, Some(_)) => {
             return Err(JobError::Usage(
-                "--scan-landmarks needs template landmarks too (--template-landmarks, or the template's own)".into(),
+                "scan landmarks need template landmarks too (a template landmark file, or the template's own)".into(),
             ));
         }
     };
@@ -328,4 +289,31 @@ pub fn info(path: &Path, original: Option<&Path>) -> Result<MeshInfo, JobError> 
         folded_triangles: quality::folded_triangles(&m),
         variation,
     })
+}
+
+impl std::fmt::Display for DemoSummary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "The paper's sphere-to-box case with missing data (the +x face and a disc on top removed):"
+        )?;
+        for m in &self.methods {
+            write!(
+                f,
+                "\n  {:<8} {:>2} iterations {:.2} s: missing region ({} vertices) mean {:.2}%, 90th percentile {:.2}% of the box diagonal from the true box; watertight {}, folded {}",
+                format!("{:?}", m.method).to_lowercase(),
+                m.iterations,
+                m.seconds,
+                m.missing_vertices,
+                m.missing_mean * 100.0,
+                m.missing_p90 * 100.0,
+                m.watertight,
+                m.folded_triangles
+            )?;
+        }
+        for p in &self.files {
+            write!(f, "\nwrote {}", p.display())?;
+        }
+        Ok(())
+    }
 }

@@ -6,25 +6,45 @@
 mod conformation;
 mod rig;
 mod shapes;
+mod station;
 mod stereo;
 
 pub use conformation::*;
 pub use rig::*;
 pub use shapes::*;
+pub use station::*;
 pub use stereo::*;
 
 use crate::mesh;
 use crate::mesh::io::write_atomic;
 use std::path::Path;
 
+/// Why a job failed: the typed error of the stage that failed, or a sentence about the
+/// request itself (`Usage`).
 #[derive(Debug, thiserror::Error)]
 pub enum JobError {
     #[error(transparent)]
     File(#[from] mesh::FileError),
     #[error("{path}: {msg}")]
     Config { path: String, msg: String },
+    #[error(transparent)]
+    Station(#[from] crate::station::ConfigError),
     #[error("{0}")]
     Conform(#[from] crate::conform::ConformError),
+    #[error(transparent)]
+    CaptureSet(#[from] crate::rig::capture_set::CaptureSetError),
+    #[error(transparent)]
+    Capture(#[from] crate::rig::capture::CaptureError),
+    #[error(transparent)]
+    Rig(#[from] crate::stereo::rig::RigError),
+    #[error("{0}")]
+    Reconstruct(String),
+    #[error(transparent)]
+    Model(#[from] crate::model::ModelError),
+    #[error(transparent)]
+    Pipeline(#[from] crate::station::PipelineError),
+    #[error(transparent)]
+    Stage(#[from] crate::station::StageError),
     #[error("{0}")]
     Usage(String),
     #[error("{path}: {source}")]

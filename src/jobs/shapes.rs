@@ -22,16 +22,16 @@ pub struct TemplateSummary {
 /// (`<out without extension>.landmarks`). The vertex order does not depend on pose or
 /// shape, so subjects made this way are their own ground truth.
 pub fn template(
-    kind: crate::synth::templates::Kind,
+    kind: crate::template::Kind,
     vertices: usize,
     pose: &str,
     shape: &str,
     out: &Path,
 ) -> Result<TemplateSummary, JobError> {
-    use crate::synth::templates;
+    use crate::template as templates;
     if !(500..=200_000).contains(&vertices) {
         return Err(JobError::Usage(format!(
-            "--vertices must be 500 to 200000, got {vertices}"
+            "a generic template has 500 to 200000 vertices, not {vertices}"
         )));
     }
     let pose_names: Vec<&str> = templates::pose_parameters(kind)
@@ -134,14 +134,7 @@ pub fn render(
             let s = mesh::read_mesh(scan)?;
             let surface = conform::correspond::ScanSurface::new(&s)
                 .map_err(|e| JobError::Usage(format!("{}: {e}", scan.display())))?;
-            let values: Vec<f64> = m.vertices.iter().map(|p| surface.distance(p)).collect();
-            let max = values.iter().cloned().fold(0.0, f64::max);
-            Colouring::Values {
-                values,
-                min: 0.0,
-                max,
-                unit: "DISTANCE".into(),
-            }
+            Colouring::distances(m.vertices.iter().map(|p| surface.distance(p)).collect())
         }
     };
     let img = render::render(
@@ -262,4 +255,24 @@ pub fn model_score(
                 .map_err(|e| JobError::Usage(e.to_string()))
         })
         .collect()
+}
+
+impl std::fmt::Display for TemplateSummary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} vertices, {} triangles, {} landmarks, groups {}; watertight {}\nwrote {}\nwrote {}",
+            self.vertices,
+            self.triangles,
+            self.landmark_count,
+            self.groups
+                .iter()
+                .map(|(g, n)| format!("{g} ({n})"))
+                .collect::<Vec<_>>()
+                .join(", "),
+            self.watertight,
+            self.mesh.display(),
+            self.landmarks.display()
+        )
+    }
 }

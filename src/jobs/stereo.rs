@@ -2,6 +2,8 @@
 //! reconstruction.
 
 use super::*;
+use crate::rig::capture_set::CaptureSetDir;
+use crate::stereo::rig::Reconstruction;
 use std::path::{Path, PathBuf};
 
 /// Renders capture sets of a subject (a mesh file, or a generic `pig`/`body` posed with
@@ -16,8 +18,8 @@ pub fn simulate(
     noise: f64,
     out: &Path,
 ) -> Result<Vec<PathBuf>, JobError> {
-    use crate::synth::templates;
-    let rig = crate::synth::rig::RigFile::load(rig_path).map_err(JobError::Usage)?;
+    use crate::template as templates;
+    let rig = crate::stereo::rig::RigFile::load(rig_path)?;
     let mesh = match subject.parse::<templates::Kind>() {
         Ok(kind) if !Path::new(subject).exists() => {
             let names: Vec<&str> = templates::pose_parameters(kind)
@@ -71,8 +73,8 @@ pub fn simulate(
 /// One rendered camera image: pod, side, width, height, grey pixels.
 type SimImage = (String, &'static str, u32, u32, Vec<u8>);
 
-/// Writes a simulated capture set under `out` as the rig would (images, `extra` files,
-/// the manifest last, the folder renamed into place); returns its folder.
+/// Writes a simulated capture set under `out` through the one capture-set writer, with
+/// `extra` files (ground truth) beside the images; returns its folder.
 fn write_simulated_set(
     out: &Path,
     n: usize,
@@ -82,18 +84,13 @@ fn write_simulated_set(
     extra: &[(&str, Vec<u8>)],
 ) -> Result<PathBuf, JobError> {
     use crate::rig::capture::{CameraRecord, Manifest, TriggerRecord, utc_stamp};
-    let io = |p: &Path, source| JobError::Io {
-        path: p.display().to_string(),
-        source,
-    };
     let id = format!("{}-sim{n:03}", utc_stamp(std::time::SystemTime::now()));
-    let partial = out.join(format!(".{id}.partial"));
-    std::fs::create_dir_all(&partial).map_err(|e| io(&partial, e))?;
     let mut cameras = Vec::new();
+    let mut files = Vec::new();
     for (pod, side, width, height, pixels) in images {
         let file = format!("{pod}-{side}.png");
         let img = image::GrayImage::from_raw(width, height, pixels).expect("sized");
-        crate::render::save_png(&img, &partial.join(&file))?;
+        files.push((file.clone(), crate::render::png_bytes(&img)));
         cameras.push(CameraRecord {
             id: format!("{pod}-{side}"),
             pod,
@@ -106,14 +103,16 @@ fn write_simulated_set(
             exposure_us: None,
         });
     }
-    for (name, bytes) in extra {
-        write_atomic(&partial.join(name), bytes)?;
-    }
+    files.extend(
+        extra
+            .iter()
+            .map(|(name, bytes)| (name.to_string(), bytes.clone())),
+    );
     let now = utc_stamp(std::time::SystemTime::now());
     let manifest = Manifest {
         format: Manifest::FORMAT.into(),
-        version: 1,
-        id: id.clone(),
+        version: Manifest::VERSION,
+        id,
         station: station.into(),
         subject: Some(subject.into()),
         started_utc: now.clone(),
@@ -125,13 +124,13 @@ fn write_simulated_set(
         },
         cameras,
     };
-    write_atomic(
-        &partial.join("manifest.json"),
-        &serde_json::to_vec_pretty(&manifest).expect("serialises"),
-    )?;
-    let dir = out.join(&id);
-    std::fs::rename(&partial, &dir).map_err(|e| io(&dir, e))?;
-    Ok(dir)
+    std::fs::create_dir_all(out).map_err(|source| JobError::Io {
+        path: out.display().to_string(),
+        source,
+    })?;
+    Ok(crate::rig::capture_set::write_capture_set(
+        out, &manifest, &files,
+    )?)
 }
 
 /// Renders one capture set of a chessboard lying face up on the rig's floor, its long
@@ -146,9 +145,10 @@ pub fn simulate_placement(
     noise: f64,
     out: &Path,
 ) -> Result<PathBuf, JobError> {
-    use crate::synth::rig::{Chessboard, RigFile, placement_board, render_chessboard};
+    use crate::stereo::rig::RigFile;
+    use crate::synth::rig::{Chessboard, placement_board, render_chessboard};
     let (cols, rows) = parse_board(board)?;
-    let rig = RigFile::load(rig_path).map_err(JobError::Usage)?;
+    let rig = RigFile::load(rig_path)?;
     let cb = Chessboard { cols, rows, square };
     let placement = placement_board(&rig, &cb, yaw);
     let pose = placement.board_from_rig();
@@ -174,45 +174,6 @@ pub fn simulate_placement(
     )
 }
 
-/// One camera's image from a capture set: the pod's `side` camera in the manifest, read
-/// as 8-bit grey and checked against the calibration's size. Errors name the camera and
-/// the file. Returns the pixels and the camera's name with its file, for later errors.
-fn camera_image(
-    capture: &Path,
-    manifest: &crate::rig::capture::Manifest,
-    pod: &str,
-    side: &str,
-    size: (u32, u32),
-) -> Result<(image::GrayImage, String), JobError> {
-    let cam = manifest
-        .cameras
-        .iter()
-        .find(|c| c.pod == pod && c.side == side)
-        .ok_or_else(|| {
-            JobError::Usage(format!(
-                "{}: no {side} image of pod {pod} in the capture set",
-                capture.display()
-            ))
-        })?;
-    let path = capture.join(&cam.file);
-    let named = format!("camera {} ({})", cam.id, path.display());
-    let fail =
-        |what: String| JobError::Usage(format!("camera {}: {}: {what}", cam.id, path.display()));
-    let img = image::open(&path)
-        .map_err(|e| fail(e.to_string()))?
-        .to_luma8();
-    if img.dimensions() != size {
-        return Err(fail(format!(
-            "the image is {}x{}, the calibration is for {}x{}",
-            img.width(),
-            img.height(),
-            size.0,
-            size.1
-        )));
-    }
-    Ok((img, named))
-}
-
 /// One pod's pose found by `calibrate --placement`.
 #[derive(Debug, Clone, serde::Serialize)]
 pub struct PodPlacement {
@@ -228,6 +189,23 @@ pub struct PodPlacement {
     /// calibration, against the one from its own view: a check of the calibration
     pub left_right_mm: f64,
     pub left_right_deg: f64,
+}
+
+impl std::fmt::Display for PodPlacement {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "pod {}: left camera at ({:.4}, {:.4}, {:.4}) m; corner RMS {:.3} / {:.3} px; left-right check {:.2} mm, {:.3} deg",
+            self.pod,
+            self.position[0],
+            self.position[1],
+            self.position[2],
+            self.rms_left,
+            self.rms_right,
+            self.left_right_mm,
+            self.left_right_deg
+        )
+    }
 }
 
 /// Finds every pod's pose in the rig frame from one capture set of a chessboard that
@@ -253,19 +231,24 @@ pub fn calibrate_placement(
     use crate::stereo::calib::Pose;
     let (cols, rows) = parse_board(board)?;
     let station = Reconstruction::load(rig_path, calibration)?;
-    let manifest =
-        crate::rig::capture::Manifest::read(capture).map_err(|e| JobError::Usage(e.to_string()))?;
+    let set = CaptureSetDir::open(capture)?;
     let board = placement.board_from_rig();
     let mut rig = station.rig.clone();
     let mut found = Vec::new();
     for (pod, spec) in station.pods.iter().zip(&mut rig.pods) {
         let mut views = Vec::new();
         for (side, k) in [("left", &pod.left), ("right", &pod.right)] {
-            let (img, named) =
-                camera_image(capture, &manifest, &pod.id, side, (k.width, k.height))?;
-            let named = |what: String| JobError::Usage(format!("{named}: {what}"));
+            let img = set.grey_image(&pod.id, side, (k.width, k.height))?;
+            let cam = set.camera(&pod.id, side)?;
+            let named = |what: String| {
+                JobError::Usage(format!(
+                    "camera {} ({}): {what}",
+                    cam.id,
+                    capture.join(&cam.file).display()
+                ))
+            };
             let view = crate::stereo::calibrate::board_pose(k, img.as_raw(), cols, rows, square)
-                .map_err(|e| named(e))?
+                .map_err(&named)?
                 .ok_or_else(|| {
                     named(format!(
                         "the {cols}x{rows} board is not in view; every pod must see the whole board"
@@ -314,159 +297,25 @@ pub fn calibrate_placement(
     Ok(found)
 }
 
-/// A station's reconstruction set-up: the rig file, its pods with their calibrations
-/// (checked to belong to this rig), the options, and the rectification maps, built on the
-/// first capture and reused for every later one. The daemon keeps one; the CLI makes one
-/// per call ([`reconstruct`]).
-pub struct Reconstruction {
-    pub rig: crate::synth::rig::RigFile,
-    pub pods: Vec<crate::stereo::calib::Pod>,
-    pub options: crate::stereo::reconstruct::ReconstructOptions,
-    cache: crate::stereo::reconstruct::RectifierCache,
-}
-
-impl Reconstruction {
-    /// Loads the rig file and, from `calibration` when given, every pod's `<pod>.yml`
-    /// (OpenCV YAML), which replaces the rig file's lenses and pair geometry. A
-    /// calibration that names another rig or pod, was made for another image size, or
-    /// whose baseline is more than 25% off the rig file's is refused.
-    pub fn load(rig_path: &Path, calibration: Option<&Path>) -> Result<Reconstruction, JobError> {
-        let rig = crate::synth::rig::RigFile::load(rig_path).map_err(JobError::Usage)?;
-        let mut pods = Vec::new();
-        for pod in rig.pods() {
-            let Some(dir) = calibration else {
-                pods.push(pod);
-                continue;
-            };
-            let f = dir.join(format!("{}.yml", pod.id));
-            if !f.exists() {
-                return Err(JobError::Usage(format!(
-                    "{}: no calibration for pod {}",
-                    f.display(),
-                    pod.id
-                )));
-            }
-            let (cal, origin) = crate::stereo::calibrate::read_yaml(
-                &f,
-                &pod.id,
-                pod.left_pose,
-                pod.left.width,
-                pod.left.height,
-            )
-            .map_err(JobError::Usage)?;
-            let refuse = |why: String| {
-                JobError::Usage(format!(
-                    "{}: {why}; is it a calibration from another rig? (rig file {})",
-                    f.display(),
-                    rig_path.display()
-                ))
-            };
-            if let Some(r) = origin.rig.as_ref().filter(|r| **r != rig.name) {
-                return Err(refuse(format!(
-                    "made for rig '{r}', this rig is '{}'",
-                    rig.name
-                )));
-            }
-            if let Some(p) = origin.pod.as_ref().filter(|p| **p != pod.id) {
-                return Err(refuse(format!("made for pod '{p}', not '{}'", pod.id)));
-            }
-            if let Some((w, h)) = origin
-                .image
-                .filter(|s| *s != (pod.left.width, pod.left.height))
-            {
-                return Err(refuse(format!(
-                    "made for {w}x{h} images, pod {}'s cameras give {}x{}",
-                    pod.id, pod.left.width, pod.left.height
-                )));
-            }
-            let ratio = cal.baseline() / pod.baseline();
-            if !(0.75..=1.25).contains(&ratio) {
-                return Err(refuse(format!(
-                    "its baseline is {:.4} m, the rig file gives pod {} {:.4} m",
-                    cal.baseline(),
-                    pod.id,
-                    pod.baseline()
-                )));
-            }
-            pods.push(cal);
-        }
-        let mut options = rig.reconstruct.clone().unwrap_or_default();
-        options.working_volume = options.working_volume.or(rig.working_volume);
-        Ok(Reconstruction {
-            rig,
-            pods,
-            options,
-            cache: Default::default(),
-        })
+/// Reconstructs the capture set in `capture` with a loaded rig (its rectification maps
+/// cached across calls) and writes the scan and, if asked, the JSON report.
+pub fn reconstruct_with(
+    station: &mut Reconstruction,
+    capture: &Path,
+    out: &Path,
+    report_path: Option<&Path>,
+    as_mesh: bool,
+) -> Result<crate::stereo::reconstruct::ReconstructReport, JobError> {
+    let set = CaptureSetDir::open(capture)?;
+    let images = crate::station::pipeline::read_pod_images(&set, &station.pods)?;
+    let (scan, report) = station
+        .run(&images.pixels, as_mesh)
+        .map_err(|e| JobError::Reconstruct(format!("{e}; images: {}", images.named(e.pod()))))?;
+    mesh::write_mesh(out, &scan)?;
+    if let Some(p) = report_path {
+        write_report(p, &report)?;
     }
-
-    /// Reconstructs one capture set (see [`reconstruct`]).
-    pub fn run(
-        &mut self,
-        capture: &Path,
-        out: &Path,
-        report_path: Option<&Path>,
-        as_mesh: bool,
-    ) -> Result<crate::stereo::reconstruct::ReconstructReport, JobError> {
-        use crate::stereo::reconstruct::{self as rc, PodImages, ReconstructError};
-        let manifest = crate::rig::capture::Manifest::read(capture)
-            .map_err(|e| JobError::Usage(e.to_string()))?;
-        // every image read and checked before any matching starts
-        let mut images = Vec::new();
-        let mut cameras = Vec::new();
-        for pod in &self.pods {
-            let mut pair = Vec::new();
-            for side in ["left", "right"] {
-                let (img, named) = camera_image(
-                    capture,
-                    &manifest,
-                    &pod.id,
-                    side,
-                    (pod.left.width, pod.left.height),
-                )?;
-                pair.push(img.into_raw());
-                cameras.push((pod.id.clone(), named));
-            }
-            let right = pair.pop().expect("two sides");
-            images.push((pair.pop().expect("two sides"), right));
-        }
-        let inputs: Vec<PodImages> = self
-            .pods
-            .iter()
-            .zip(&images)
-            .map(|(pod, (l, r))| PodImages {
-                pod,
-                left: l,
-                right: r,
-            })
-            .collect();
-        let mut report = rc::ReconstructReport::default();
-        let scan = rc::reconstruct(
-            &inputs,
-            &mut self.cache,
-            &self.options,
-            as_mesh,
-            &mut report,
-        )
-        .map_err(|e| {
-            let pod = match &e {
-                ReconstructError::OpenCv { pod, .. }
-                | ReconstructError::EmptyDisparity { pod }
-                | ReconstructError::Input { pod, .. } => pod.clone(),
-            };
-            let seen: Vec<&str> = cameras
-                .iter()
-                .filter(|(p, _)| *p == pod)
-                .map(|(_, c)| c.as_str())
-                .collect();
-            JobError::Usage(format!("{e}; images: {}", seen.join(", ")))
-        })?;
-        mesh::write_mesh(out, &scan)?;
-        if let Some(p) = report_path {
-            write_report(p, &report)?;
-        }
-        Ok(report)
-    }
+    Ok(report)
 }
 
 /// Reconstructs a capture set into a scan in the rig frame: every pod of the rig file
@@ -486,7 +335,8 @@ pub fn reconstruct(
     report_path: Option<&Path>,
     as_mesh: bool,
 ) -> Result<crate::stereo::reconstruct::ReconstructReport, JobError> {
-    Reconstruction::load(rig_path, calibration)?.run(capture, out, report_path, as_mesh)
+    let mut station = Reconstruction::load(rig_path, calibration)?;
+    reconstruct_with(&mut station, capture, out, report_path, as_mesh)
 }
 
 /// Disparity of an already-rectified pair, written as PFM (or 16-bit PNG x16 for .png).
@@ -548,14 +398,15 @@ pub fn simulate_chessboard(
     views: usize,
     out: &Path,
 ) -> Result<Vec<PathBuf>, JobError> {
-    use crate::synth::rig::{Chessboard, RigFile, chessboard_poses, render_chessboard};
+    use crate::stereo::rig::RigFile;
+    use crate::synth::rig::{Chessboard, chessboard_poses, render_chessboard};
     let (cols, rows) = parse_board(board)?;
     if !(square > 0.0) {
         return Err(JobError::Usage(format!(
-            "--square must be positive, got {square}"
+            "the chessboard's square size must be positive, got {square}"
         )));
     }
-    let rig = RigFile::load(rig_path).map_err(JobError::Usage)?;
+    let rig = RigFile::load(rig_path)?;
     let cb = Chessboard { cols, rows, square };
     let mut dirs = Vec::new();
     for (pod, spec) in rig.pods().iter().zip(&rig.pods) {

@@ -67,13 +67,56 @@ fn content_err(path: &str, msg: impl Into<String>) -> FileError {
 pub fn read_mesh(path: &Path) -> Result<Mesh, FileError> {
     let name = path.display().to_string();
     let ext = extension(path);
-    let bytes = std::fs::read(path).map_err(|e| FileError::io(&name, e))?;
+    let bytes = read_limited(path, MAX_MESH_BYTES)?;
     match ext.as_str() {
         "ply" => read_ply_bytes(&name, &bytes),
         "obj" => read_obj_bytes(&name, &bytes),
         "off" => read_off_bytes(&name, &bytes),
         _ => Err(FileError::Format { path: name }),
     }
+}
+
+/// Largest mesh file read: a 20M-point binary PLY with normals; a device, a stream or a
+/// runaway file is refused instead of read until memory runs out.
+pub const MAX_MESH_BYTES: u64 = 1 << 30;
+
+/// Reads a regular file of at most `max` bytes. A folder, a device, a pipe or a larger
+/// file is refused with a sentence naming it.
+pub fn read_limited(path: &Path, max: u64) -> Result<Vec<u8>, FileError> {
+    use std::io::Read;
+    let name = path.display().to_string();
+    let f = std::fs::File::open(path).map_err(|e| FileError::io(&name, e))?;
+    let meta = f.metadata().map_err(|e| FileError::io(&name, e))?;
+    if !meta.is_file() {
+        return Err(content_err(&name, "not a regular file"));
+    }
+    if meta.len() > max {
+        return Err(content_err(
+            &name,
+            format!(
+                "{} bytes, more than the {} this file may have",
+                meta.len(),
+                max
+            ),
+        ));
+    }
+    let mut bytes = Vec::with_capacity(meta.len() as usize);
+    f.take(max + 1)
+        .read_to_end(&mut bytes)
+        .map_err(|e| FileError::io(&name, e))?;
+    if bytes.len() as u64 > max {
+        return Err(content_err(
+            &name,
+            format!("grew past {max} bytes while read"),
+        ));
+    }
+    Ok(bytes)
+}
+
+/// [`read_limited`] for UTF-8 text.
+pub fn read_text_limited(path: &Path, max: u64) -> Result<String, FileError> {
+    String::from_utf8(read_limited(path, max)?)
+        .map_err(|_| content_err(&path.display().to_string(), "not UTF-8 text"))
 }
 
 /// Writes `.ply` (binary little-endian) or `.obj`, atomically.

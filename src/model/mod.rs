@@ -608,3 +608,60 @@ pub fn quality(
         specificity,
     })
 }
+
+impl std::fmt::Display for ShapeModel {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "model of {} meshes, {} vertices, {} modes",
+            self.samples.len(),
+            self.indices.len(),
+            self.modes.len()
+        )?;
+        let mut cum = 0.0;
+        for (i, e) in self.explained.iter().enumerate().take(10) {
+            cum += e;
+            write!(
+                f,
+                "\n  mode {:>2}: {:5.1}% of the variance ({:5.1}% cumulative)",
+                i + 1,
+                e * 100.0,
+                cum * 100.0
+            )?;
+        }
+        Ok(())
+    }
+}
+
+impl std::fmt::Display for Quality {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "  modes  compactness  generalisation  specificity")?;
+        for i in 0..self.modes.len() {
+            write!(
+                f,
+                "\n  {:>5}  {:>11.3}  {:>14.4e}  {:>11.4e}",
+                self.modes[i], self.compactness[i], self.generalisation[i], self.specificity[i]
+            )?;
+        }
+        Ok(())
+    }
+}
+
+impl std::fmt::Display for Score {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let z: Vec<String> = self
+            .scores_sd
+            .iter()
+            .take(5)
+            .map(|z| format!("{z:+.2}"))
+            .collect();
+        write!(
+            f,
+            "{}: scores (sd) [{}], residual {:.3e}, mahalanobis {:.2}",
+            self.name,
+            z.join(", "),
+            self.residual,
+            self.mahalanobis
+        )
+    }
+}

@@ -51,6 +51,23 @@ pub enum Colouring {
     },
 }
 
+impl Colouring {
+    /// Distances (one per vertex) on a colour map from 0 to the largest.
+    pub fn distances(values: Vec<f64>) -> Colouring {
+        let max = values
+            .iter()
+            .cloned()
+            .filter(|v| v.is_finite())
+            .fold(0.0, f64::max);
+        Colouring::Values {
+            values,
+            min: 0.0,
+            max,
+            unit: "DISTANCE".into(),
+        }
+    }
+}
+
 #[derive(Debug, Clone)]
 pub struct RenderOptions {
     pub width: u32,

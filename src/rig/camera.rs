@@ -45,7 +45,7 @@ impl PixelFormat {
 
 /// What a camera is asked for before a capture.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
-#[serde(deny_unknown_fields)]
+#[serde(default, deny_unknown_fields)]
 pub struct CameraSettings {
     pub format: PixelFormat,
     pub width: u32,

@@ -6,10 +6,12 @@
 //! without a manifest under `captures/`.
 
 use super::camera::{Camera, CameraError, CameraSettings, Frame};
+use super::capture_set::write_capture_set;
+pub use super::capture_set::{CameraRecord, Manifest, TriggerRecord, utc_stamp};
 use super::trigger::{TriggerBox, TriggerError, TriggerLink};
 use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
-use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+use std::time::{Duration, Instant, SystemTime};
 
 /// Fires the cameras.
 pub trait Trigger {
@@ -108,100 +110,6 @@ pub enum CaptureError {
     },
 }
 
-/// `manifest.json` of a capture set (layout in DESIGN.md).
-#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct Manifest {
-    pub format: String,
-    pub version: u32,
-    pub id: String,
-    pub station: String,
-    pub subject: Option<String>,
-    pub started_utc: String,
-    pub finished_utc: String,
-    pub trigger: TriggerRecord,
-    pub cameras: Vec<CameraRecord>,
-}
-
-#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct TriggerRecord {
-    pub kind: String,
-    pub sequence: u32,
-    pub box_time_us: Option<u64>,
-}
-
-#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct CameraRecord {
-    pub id: String,
-    pub pod: String,
-    pub side: String,
-    pub file: String,
-    pub width: u32,
-    pub height: u32,
-    pub sensor_timestamp_us: u64,
-    pub sequence: u32,
-    pub exposure_us: Option<u32>,
-}
-
-impl Manifest {
-    pub const FORMAT: &'static str = "conformd-capture";
-
-    /// Reads and checks a set's manifest.
-    pub fn read(dir: &Path) -> Result<Manifest, CaptureError> {
-        let p = dir.join("manifest.json");
-        let err = |msg: String| CaptureError::Write {
-            path: p.display().to_string(),
-            msg,
-        };
-        let bytes = std::fs::read(&p).map_err(|e| err(e.to_string()))?;
-        let m: Manifest = serde_json::from_slice(&bytes)
-            .map_err(|e| err(format!("not a valid manifest: {e}")))?;
-        if m.format != Self::FORMAT || m.version != 1 {
-            return Err(err(format!(
-                "format {} version {} is not conformd-capture 1",
-                m.format, m.version
-            )));
-        }
-        Ok(m)
-    }
-}
-
-/// UTC time as `YYYYMMDDTHHMMSS.mmmZ` (sortable, safe in file names).
-pub fn utc_stamp(t: SystemTime) -> String {
-    let d = t.duration_since(UNIX_EPOCH).unwrap_or_default();
-    let secs = d.as_secs() as i64;
-    let (days, rem) = (secs.div_euclid(86_400), secs.rem_euclid(86_400));
-    // civil date from days since 1970-01-01 (H. Hinnant's algorithm)
-    let z = days + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z.rem_euclid(146_097);
-    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let day = doy - (153 * mp + 2) / 5 + 1;
-    let month = if mp < 10 { mp + 3 } else { mp - 9 };
-    let year = yoe + era * 400 + if month <= 2 { 1 } else { 0 };
-    format!(
-        "{year:04}{month:02}{day:02}T{:02}{:02}{:02}.{:03}Z",
-        rem / 3600,
-        rem % 3600 / 60,
-        rem % 60,
-        d.subsec_millis()
-    )
-}
-
-/// Writes bytes to a file and syncs it.
-fn write_synced(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
-    let mut f = std::fs::File::create(path)?;
-    f.write_all(bytes)?;
-    f.sync_all()
-}
-
-fn sync_dir(dir: &Path) {
-    if let Ok(d) = std::fs::File::open(dir) {
-        let _ = d.sync_all();
-    }
-}
-
 /// A capture station's cameras, trigger and capture directory.
 pub struct Session {
     pub cameras: Vec<Box<dyn Camera>>,
@@ -222,6 +130,20 @@ pub struct CaptureSet {
     pub dir: PathBuf,
     pub manifest: Manifest,
     pub attempts: u32,
+}
+
+impl std::fmt::Display for CaptureSet {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "captured {} ({} cameras, {} attempt{})\nwrote {}",
+            self.id,
+            self.manifest.cameras.len(),
+            self.attempts,
+            if self.attempts == 1 { "" } else { "s" },
+            self.dir.display()
+        )
+    }
 }
 
 impl Session {
@@ -335,19 +257,16 @@ impl Session {
         frames: &[Frame],
         box_time: Option<u64>,
     ) -> Result<CaptureSet, CaptureError> {
-        let partial = self.root.join(format!(".{id}.partial"));
-        let werr = |p: &Path, e: &dyn std::fmt::Display| CaptureError::Write {
-            path: p.display().to_string(),
-            msg: e.to_string(),
-        };
-        std::fs::create_dir_all(&partial).map_err(|e| werr(&partial, &e))?;
         let mut cameras = Vec::new();
+        let mut files = Vec::new();
         for (f, c) in frames.iter().zip(&self.cameras) {
             let info = c.info();
             let file = format!("{}.{}", info.id, f.extension());
-            let bytes = f.encode().map_err(|e| werr(&partial.join(&file), &e))?;
-            write_synced(&partial.join(&file), &bytes)
-                .map_err(|e| werr(&partial.join(&file), &e))?;
+            let bytes = f.encode().map_err(|e| CaptureError::Write {
+                path: self.root.join(id).join(&file).display().to_string(),
+                msg: e.to_string(),
+            })?;
+            files.push((file.clone(), bytes));
             cameras.push(CameraRecord {
                 id: info.id.clone(),
                 pod: info.pod.clone(),
@@ -362,7 +281,7 @@ impl Session {
         }
         let manifest = Manifest {
             format: Manifest::FORMAT.into(),
-            version: 1,
+            version: Manifest::VERSION,
             id: id.into(),
             station: self.options.station.clone(),
             subject: subject.map(str::to_string),
@@ -375,14 +294,11 @@ impl Session {
             },
             cameras,
         };
-        // the manifest last: a set without one is incomplete
-        let json = serde_json::to_vec_pretty(&manifest).expect("a manifest serialises");
-        let mp = partial.join("manifest.json");
-        write_synced(&mp, &json).map_err(|e| werr(&mp, &e))?;
-        sync_dir(&partial);
-        let dir = self.root.join(id);
-        std::fs::rename(&partial, &dir).map_err(|e| werr(&dir, &e))?;
-        sync_dir(&self.root);
+        let dir =
+            write_capture_set(&self.root, &manifest, &files).map_err(|e| CaptureError::Write {
+                path: e.path().to_string(),
+                msg: e.to_string(),
+            })?;
         Ok(CaptureSet {
             id: id.into(),
             dir,
@@ -427,19 +343,4 @@ fn check_skew(frames: &[Frame], max_ms: f64) -> Result<(), CaptureError> {
         });
     }
     Ok(())
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn utc_stamps_are_civil_dates() {
-        let t = UNIX_EPOCH + Duration::from_millis(1_795_313_106_789); // 2026-11-22T02:05:06.789Z
-        assert_eq!(utc_stamp(t), "20261122T020506.789Z");
-        assert_eq!(
-            utc_stamp(UNIX_EPOCH + Duration::from_secs(951_782_400)),
-            "20000229T000000.000Z"
-        );
-    }
 }

@@ -5,6 +5,7 @@
 
 pub mod camera;
 pub mod capture;
+pub mod capture_set;
 pub mod replay;
 pub mod station;
 pub mod trigger;

@@ -13,8 +13,8 @@ use std::time::Duration;
 #[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CaptureSection {
-    /// the `captures/` directory (relative to the config file)
-    pub root: PathBuf,
+    /// the `captures/` directory (relative to the config file; default: the station's)
+    pub root: Option<PathBuf>,
     #[serde(flatten)]
     pub options: CaptureOptions,
     #[serde(default)]
@@ -54,9 +54,30 @@ pub struct CameraSection {
     pub synthetic: bool,
 }
 
-/// The rig part of a station config.
+impl CameraSection {
+    /// Plain id, pod and side (they become file names), and exactly one source.
+    pub fn check(&self) -> Result<(), String> {
+        use crate::paths::check_plain_name;
+        check_plain_name("camera id", &self.id)?;
+        check_plain_name(&format!("camera {}'s pod", self.id), &self.pod)?;
+        check_plain_name(&format!("camera {}'s side", self.id), &self.side)?;
+        let kinds =
+            self.device.is_some() as u8 + self.replay.is_some() as u8 + self.synthetic as u8;
+        if kinds != 1 {
+            return Err(format!(
+                "camera '{}': give exactly one of device, replay or synthetic",
+                self.id
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// The rig part of a station config (made by `station::StationConfig::rig_config`).
 #[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
 pub struct RigConfig {
+    /// where capture sets are written
+    pub root: PathBuf,
     pub capture: CaptureSection,
     pub trigger: Option<TriggerSection>,
     pub cameras: Vec<CameraSection>,
@@ -71,56 +92,6 @@ pub enum StationError {
 }
 
 impl RigConfig {
-    /// Reads the rig sections of a station config; paths are made absolute against the
-    /// config's folder.
-    pub fn load(path: &Path) -> Result<RigConfig, StationError> {
-        let name = path.display().to_string();
-        let err = |msg: String| StationError::Config {
-            path: name.clone(),
-            msg,
-        };
-        let text = std::fs::read_to_string(path).map_err(|e| err(e.to_string()))?;
-        let table: toml::Table = toml::from_str(&text).map_err(|e| err(e.to_string()))?;
-        let pick = |k: &str| table.get(k).cloned();
-        let mut sub = toml::Table::new();
-        for k in ["capture", "trigger", "cameras"] {
-            if let Some(v) = pick(k) {
-                sub.insert(k.into(), v);
-            }
-        }
-        let mut cfg: RigConfig = sub
-            .try_into()
-            .map_err(|e: toml::de::Error| err(e.to_string()))?;
-        if cfg.cameras.is_empty() {
-            return Err(err("[[cameras]]: no camera is configured".into()));
-        }
-        let base = path.parent().unwrap_or(Path::new("."));
-        let abs = |p: &mut PathBuf| {
-            if p.is_relative() {
-                *p = base.join(&*p);
-            }
-        };
-        abs(&mut cfg.capture.root);
-        for c in &mut cfg.cameras {
-            let kinds = c.device.is_some() as u8 + c.replay.is_some() as u8 + c.synthetic as u8;
-            if kinds != 1 {
-                return Err(err(format!(
-                    "camera '{}': give exactly one of device, replay or synthetic",
-                    c.id
-                )));
-            }
-            for r in c.replay.iter_mut().flatten() {
-                abs(r);
-            }
-        }
-        let mut ids: Vec<&str> = cfg.cameras.iter().map(|c| c.id.as_str()).collect();
-        ids.sort_unstable();
-        if ids.windows(2).any(|w| w[0] == w[1]) {
-            return Err(err("two cameras have the same id".into()));
-        }
-        Ok(cfg)
-    }
-
     /// Opens the cameras and the trigger into a capture session.
     pub fn open(&self) -> Result<Session, StationError> {
         let s = &self.capture.camera_settings;
@@ -152,7 +123,7 @@ impl RigConfig {
         let mut session = Session::new(
             cameras,
             trigger,
-            &self.capture.root,
+            &self.root,
             self.capture.options.clone(),
             s.clone(),
         );

@@ -171,6 +171,9 @@ pub struct V4l2Camera {
     last_sequence: Option<u32>,
 }
 
+/// Frame sizes (width, height) a camera offers for one format.
+pub type Sizes = Vec<(u32, u32)>;
+
 impl V4l2Camera {
     /// Opens `/dev/videoN`, another path, or a `/dev/v4l/by-id` name.
     pub fn open(info: CameraInfo, name: &str) -> Result<Self, CameraError> {
@@ -198,7 +201,7 @@ impl V4l2Camera {
     }
 
     /// What the device offers in the formats the station reads.
-    pub fn offered(dev: &Device) -> std::io::Result<Vec<(PixelFormat, Vec<(u32, u32)>)>> {
+    pub fn offered(dev: &Device) -> std::io::Result<Vec<(PixelFormat, Sizes)>> {
         let mut out = Vec::new();
         for d in dev.enum_formats()? {
             let Some(f) = PixelFormat::from_fourcc(&d.fourcc.repr) else {
@@ -333,6 +336,28 @@ pub struct DeviceListing {
     pub driver: String,
     pub formats: Vec<String>,
     pub controls: Vec<String>,
+}
+
+impl std::fmt::Display for DeviceListing {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} ({}, driver {})",
+            self.path.display(),
+            self.name,
+            self.driver
+        )?;
+        for b in &self.by_id {
+            write!(f, "\n  by-id: /dev/v4l/by-id/{b}")?;
+        }
+        for x in &self.formats {
+            write!(f, "\n  format {x}")?;
+        }
+        for c in &self.controls {
+            write!(f, "\n  control {c}")?;
+        }
+        Ok(())
+    }
 }
 
 /// Lists V4L2 capture devices with their stable names, formats, sizes and controls.

@@ -25,6 +25,30 @@ pub struct CalibrationReport {
     pub baseline: f64,
 }
 
+impl std::fmt::Display for CalibrationReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "RMS reprojection error {:.3} px over {} of {} views; baseline {:.4}",
+            self.rms,
+            self.used.len(),
+            self.views,
+            self.baseline
+        )?;
+        for (v, e) in self.used.iter().zip(&self.per_view_left) {
+            write!(f, "\n  view {v:>2}: {e:.3} px")?;
+        }
+        if !self.skipped.is_empty() {
+            write!(
+                f,
+                "\n  skipped (board not found in both images): {:?}",
+                self.skipped
+            )?;
+        }
+        Ok(())
+    }
+}
+
 fn corners(img: &Mat, cols: u32, rows: u32) -> opencv::Result<Option<Vector<Point2f>>> {
     let mut c = Vector::<Point2f>::new();
     let found = calib3d::find_chessboard_corners(
@@ -348,7 +372,7 @@ pub fn board_pose(
     rows: u32,
     square: f64,
 ) -> Result<Option<BoardView>, String> {
-    if (cols + rows) % 2 == 0 {
+    if (cols + rows).is_multiple_of(2) {
         return Err(format!(
             "a {cols}x{rows} board looks the same from both ends; placement needs one odd and one even count of inner corners (e.g. 9x6)"
         ));

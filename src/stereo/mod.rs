@@ -5,3 +5,4 @@ pub mod calib;
 pub mod calibrate;
 pub mod disparity;
 pub mod reconstruct;
+pub mod rig;

@@ -590,6 +590,17 @@ pub enum ReconstructError {
     Input { pod: String, msg: String },
 }
 
+impl ReconstructError {
+    /// The pod whose images failed.
+    pub fn pod(&self) -> &str {
+        match self {
+            ReconstructError::OpenCv { pod, .. }
+            | ReconstructError::EmptyDisparity { pod }
+            | ReconstructError::Input { pod, .. } => pod,
+        }
+    }
+}
+
 /// A capture's pods to one scan in the rig frame: a point cloud with normals ([`fuse`]),
 /// or (`as_mesh`) every pod's triangulated depth grid in one mesh with holes
 /// ([`fuse_meshes`]). Each pod's rectification comes from `cache`; with a working volume
@@ -773,4 +784,38 @@ pub fn fuse(points: Vec<(V3, V3)>, o: &ReconstructOptions, report: &mut Reconstr
     }
     report.seconds_fuse = t.elapsed().as_secs_f64();
     mesh
+}
+
+impl std::fmt::Display for ReconstructReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        for p in &self.pods {
+            writeln!(
+                f,
+                "pod {}: {} points, {:.0}% valid disparity (rectify {:.2} s, disparity {:.2} s, reproject {:.2} s)",
+                p.pod,
+                p.points,
+                p.valid_disparity_share * 100.0,
+                p.seconds_rectify,
+                p.seconds_disparity,
+                p.seconds_reproject
+            )?;
+        }
+        if self.triangles > 0 {
+            write!(
+                f,
+                "mesh of {} vertices, {} triangles; {:.2} s",
+                self.fused_points, self.triangles, self.seconds_total
+            )
+        } else {
+            write!(
+                f,
+                "fused {} points, {} in the working volume, {} after voxels, {} after outliers; {:.2} s",
+                self.fused_points,
+                self.after_crop,
+                self.after_voxel,
+                self.after_outliers,
+                self.seconds_total
+            )
+        }
+    }
 }

@@ -2,11 +2,11 @@
 //! sphere-to-cube and sphere-to-box-with-missing-data, and an articulated figure posed,
 //! deformed and scanned from a few viewpoints, with ground-truth correspondence.
 
-use super::figure::{self, Pose};
 use super::{icosphere, scanner, tessellated_box};
 use crate::mesh::keep_triangles;
 use crate::mesh::landmarks::{Landmark, LandmarkPos};
 use crate::mesh::{Mesh, V3};
+use crate::template::figure::{self, Pose};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};

@@ -4,10 +4,8 @@
 //! viewpoints (occluded triangles removed) and resamples it as a noisy point cloud.
 
 pub mod cases;
-pub mod figure;
 pub mod rig;
 pub mod scanner;
-pub mod templates;
 
 use crate::mesh::{Mesh, V3};
 use std::collections::HashMap;

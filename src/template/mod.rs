@@ -3,9 +3,117 @@
 //! (`swing=12,nod=-8,...`, degrees per joint group) and reshape (`length=1.1,girth=0.95`)
 //! with the vertex order unchanged, so a posed or reshaped subject is its own ground truth.
 
-use super::figure::{self, Figure, Pose, Skeleton};
-use crate::mesh::{Mesh, V3};
+pub mod figure;
+
+use crate::mesh::{FileError, Landmark, Mesh, V3};
+use figure::{Figure, Pose, Skeleton};
 use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+/// Where a station's template comes from: a generic one (`pig`, `body`) built at a
+/// resolution, or any user mesh with its landmark file and optional groups file (the
+/// paper: "one of the 3D shape samples can serve as a generic mesh directly").
+/// In a station file: `[template]` with `generic = "pig"` and `vertices = 10000`, or
+/// `mesh = "..."`, `landmarks = "..."`, `groups = "..."`.
+#[derive(Debug, Clone, Default, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct TemplateSource {
+    pub generic: Option<Kind>,
+    pub vertices: Option<usize>,
+    pub mesh: Option<PathBuf>,
+    pub landmarks: Option<PathBuf>,
+    pub groups: Option<PathBuf>,
+}
+
+/// Fewest and most vertices of a generic template.
+pub const VERTICES: std::ops::RangeInclusive<usize> = 500..=200_000;
+
+impl TemplateSource {
+    /// A generic template at its default resolution.
+    pub fn generic(kind: Kind) -> TemplateSource {
+        TemplateSource {
+            generic: Some(kind),
+            ..Default::default()
+        }
+    }
+
+    /// What a user names on the command line: `pig` or `body` (when no such file exists),
+    /// else a mesh file.
+    pub fn named(name: &str, groups: Option<PathBuf>) -> TemplateSource {
+        match name.parse::<Kind>() {
+            Ok(kind) if !Path::new(name).exists() => TemplateSource::generic(kind),
+            _ => TemplateSource {
+                mesh: Some(name.into()),
+                groups,
+                ..Default::default()
+            },
+        }
+    }
+
+    /// Exactly one of a generic template or a mesh; a resolution only for a generic one.
+    pub fn check(&self) -> Result<(), String> {
+        match (&self.generic, &self.mesh) {
+            (Some(_), None) => {
+                if let Some(v) = self.vertices.filter(|v| !VERTICES.contains(v)) {
+                    return Err(format!(
+                        "vertices = {v}: a generic template has {} to {} vertices",
+                        VERTICES.start(),
+                        VERTICES.end()
+                    ));
+                }
+                if self.landmarks.is_some() || self.groups.is_some() {
+                    return Err("a generic template brings its own landmarks and groups".into());
+                }
+                Ok(())
+            }
+            (None, Some(_)) if self.vertices.is_some() => {
+                Err("vertices is for a generic template, not a mesh file".into())
+            }
+            (None, Some(_)) => Ok(()),
+            _ => Err(
+                "needs either generic = \"pig\" or \"body\", or mesh = \"FILE\" (not both)".into(),
+            ),
+        }
+    }
+
+    /// Makes relative paths absolute against `base` (a config file's folder).
+    pub fn resolve(&mut self, base: &Path) {
+        for p in [&mut self.mesh, &mut self.landmarks, &mut self.groups]
+            .into_iter()
+            .flatten()
+        {
+            if p.is_relative() {
+                *p = base.join(&*p);
+            }
+        }
+    }
+
+    /// The template mesh (with groups) and its landmarks, if it has any.
+    pub fn load(&self) -> Result<(Mesh, Option<Vec<Landmark>>), FileError> {
+        self.check()
+            .map_err(|e| FileError::content("[template]", e))?;
+        match (&self.generic, &self.mesh) {
+            (Some(kind), _) => {
+                let fig = build(*kind, self.vertices.unwrap_or(10_000));
+                let lms = fig.landmarks();
+                Ok((fig.mesh, Some(lms)))
+            }
+            (None, Some(path)) => {
+                let mut m = crate::mesh::read_mesh(path)?;
+                if let Some(g) = &self.groups {
+                    crate::mesh::groups::read_into(g, &mut m)?;
+                }
+                let lms = self
+                    .landmarks
+                    .as_ref()
+                    .map(|p| crate::mesh::read_landmarks(p))
+                    .transpose()?;
+                Ok((m, lms))
+            }
+            (None, None) => unreachable!("checked"),
+        }
+    }
+}
 
 /// Which generic template.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]

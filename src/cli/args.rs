@@ -1,0 +1,279 @@
+//! The command line's arguments: every command and flag, with its help text.
+
+use clap::{Parser, Subcommand};
+use conformd::conform::Method;
+use conformd::jobs;
+use std::path::PathBuf;
+
+#[derive(Parser)]
+#[command(
+    name = "conformd",
+    version,
+    about = "Photogrammetry station daemon: conform a template mesh onto scans"
+)]
+pub struct Cli {
+    #[command(subcommand)]
+    pub cmd: Cmd,
+}
+
+#[derive(Subcommand)]
+pub enum Cmd {
+    /// Conform a template mesh onto a scan (Ju et al. 2004, or conformd's default method).
+    Conform {
+        /// template mesh (.obj, .ply or .off), or `pig` / `body` for a generic template
+        /// (10,000 vertices, with its own landmarks); without it the config's [template]
+        #[arg(long)]
+        template: Option<String>,
+        /// vertex groups of a template mesh: lines `name i j k ...`
+        #[arg(long)]
+        template_groups: Option<PathBuf>,
+        /// scan: a mesh with holes or a point cloud (.ply, .obj or .off)
+        #[arg(long)]
+        scan: PathBuf,
+        /// template landmarks: `name vertex_index` lines (or `name x y z`, or MeshLab .pp)
+        #[arg(long)]
+        template_landmarks: Option<PathBuf>,
+        /// scan landmarks: `name x y z` lines or MeshLab .pp; without landmarks the
+        /// template is aligned automatically
+        #[arg(long)]
+        scan_landmarks: Option<PathBuf>,
+        /// conformation options (TOML: a conform.toml, or a station config's [conform])
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// method: `paper` (as published) or `default` (conformd's); overrides the config
+        #[arg(long)]
+        method: Option<Method>,
+        /// output mesh (.ply or .obj)
+        #[arg(long)]
+        out: PathBuf,
+        /// JSON report with the per-iteration figures
+        #[arg(long)]
+        report: Option<PathBuf>,
+    },
+    /// Check a station file: print the resolved configuration, or every problem with its
+    /// line.
+    Check {
+        /// the station file (TOML)
+        config: PathBuf,
+    },
+    /// Process one capture set through the station's pipeline (reconstruct, conform,
+    /// score) and write its result folder (scan.ply, conformed.ply, report.json,
+    /// preview.png) atomically under --out.
+    Process {
+        /// the capture set's folder
+        capture: PathBuf,
+        /// the station file ([template], [conform], [rig], [model])
+        #[arg(long)]
+        config: PathBuf,
+        /// results folder; the result goes to OUT/<capture id>/
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Run the paper's sphere-to-box case with missing data, both methods.
+    Demo {
+        #[arg(long, default_value = "demo-output")]
+        out: PathBuf,
+    },
+    /// Write a generic pig or body template (OBJ with groups, or PLY) and its landmarks.
+    Template {
+        /// `pig` or `body`
+        kind: conformd::template::Kind,
+        /// about how many vertices (2,000 to 100,000 is usual)
+        #[arg(long, default_value_t = 10_000)]
+        vertices: usize,
+        /// pose, degrees per joint group, e.g. `swing=12,nod=-8,twist=5`
+        #[arg(long, default_value = "")]
+        pose: String,
+        /// shape factors, e.g. `length=1.1,girth=0.95`
+        #[arg(long, default_value = "")]
+        shape: String,
+        /// output mesh (.obj keeps the groups); landmarks go beside it as .landmarks
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Render a shaded preview PNG of a mesh.
+    Render {
+        mesh: PathBuf,
+        /// `none`, `group`, or `distance-to=SCAN`
+        #[arg(long, default_value = "none")]
+        colour_by: jobs::ColourBy,
+        /// comma-separated views: front, back, left, right, side, top, three-quarter
+        #[arg(long, default_value = "three-quarter,side", value_delimiter = ',')]
+        views: Vec<String>,
+        #[arg(long, default_value_t = 800)]
+        width: u32,
+        #[arg(long, default_value_t = 600)]
+        height: u32,
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Capture one set with the station's cameras and trigger (atomically).
+    Capture {
+        /// station config with [capture], [[cameras]] and optionally [trigger]
+        #[arg(long)]
+        config: PathBuf,
+        /// the animal's or person's id, recorded in the manifest
+        #[arg(long)]
+        subject: Option<String>,
+    },
+    /// Render capture sets of a subject as the rig's cameras would see it (speckle
+    /// projector, lens distortion, sensor noise), with ground truth and calibrations.
+    Simulate {
+        #[arg(long)]
+        rig: PathBuf,
+        /// a mesh file, or `pig` / `body` (posed with --pose)
+        #[arg(long, required_unless_present = "chessboard")]
+        subject: Option<String>,
+        /// render chessboard calibration views instead (inner corners, e.g. 9x6)
+        #[arg(long)]
+        chessboard: Option<String>,
+        /// chessboard square size (m)
+        #[arg(long, default_value_t = 0.03)]
+        square: f64,
+        /// chessboard views per pod
+        #[arg(long, default_value_t = 15)]
+        views: usize,
+        /// with --chessboard: one capture set of the board lying on the rig's floor, seen
+        /// by every pod (for `calibrate --placement`), instead of calibration views
+        #[arg(long, requires = "chessboard")]
+        placement: bool,
+        /// with --placement: the board's long side turned this many degrees from the rig's
+        /// x towards its y
+        #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+        board_yaw: f64,
+        #[arg(long, default_value = "")]
+        pose: String,
+        #[arg(long, default_value_t = 1)]
+        captures: usize,
+        /// sensor noise, grey levels (standard deviation)
+        #[arg(long, default_value_t = 2.0)]
+        noise: f64,
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Stereo calibration of one pod from chessboard pairs (leftNN/rightNN images); or,
+    /// with --placement, every pod's pose in the rig frame from one capture set of a
+    /// board that all pods see (writes the rig file with measured poses).
+    Calibrate {
+        /// chessboard pairs of one pod
+        #[arg(
+            long,
+            required_unless_present = "placement",
+            conflicts_with = "placement"
+        )]
+        images: Option<PathBuf>,
+        /// a capture set of the board lying in the rig, seen by every pod
+        #[arg(long, requires = "rig")]
+        placement: Option<PathBuf>,
+        /// the rig file whose pod poses --placement measures
+        #[arg(long)]
+        rig: Option<PathBuf>,
+        /// folder of pod calibrations (`<pod>.yml`) for --placement's lenses
+        #[arg(long)]
+        calibration: Option<PathBuf>,
+        /// for --placement: where the board's origin lies in the rig frame, x,y,z (m). The
+        /// board lies face up; the origin is the outer corner of the dark corner square
+        /// from which the long side runs along the yaw direction and the short side to its
+        /// right (seen from above)
+        #[arg(long, default_value = "0,0,0", allow_hyphen_values = true)]
+        board_origin: String,
+        /// for --placement: the board's long side turned this many degrees from the rig's
+        /// x towards its y
+        #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+        board_yaw: f64,
+        /// inner corners, e.g. 9x6
+        #[arg(long)]
+        board: String,
+        /// square size (m)
+        #[arg(long)]
+        square: f64,
+        /// the pod's calibration (OpenCV YAML), or with --placement the measured rig file
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Reconstruct a capture set into a fused scan in the rig frame (OpenCV SGBM).
+    Reconstruct {
+        capture: PathBuf,
+        #[arg(long)]
+        rig: PathBuf,
+        /// folder of pod calibrations (`<pod>.yml`, OpenCV YAML) replacing the rig file's
+        #[arg(long)]
+        calibration: Option<PathBuf>,
+        #[arg(long)]
+        out: PathBuf,
+        #[arg(long)]
+        report: Option<PathBuf>,
+        /// triangulate each pod's depth grid (cut at depth jumps) into a mesh with holes
+        /// instead of fusing a point cloud
+        #[arg(long)]
+        mesh: bool,
+    },
+    /// Disparity of an already-rectified pair (PFM, or 16-bit PNG x16 for .png).
+    Disparity {
+        left: PathBuf,
+        right: PathBuf,
+        #[arg(long)]
+        out: PathBuf,
+        #[arg(long, default_value_t = 128)]
+        num_disparities: i32,
+        #[arg(long, default_value_t = 5)]
+        block_size: i32,
+    },
+    /// List V4L2 cameras with their stable names, formats, sizes and controls.
+    Cameras,
+    /// Statistical shape model over conformed meshes.
+    Model {
+        #[command(subcommand)]
+        cmd: ModelCmd,
+    },
+    /// Describe a mesh: topology, watertightness, folded triangles, and with --original
+    /// the paper's variation figures against it.
+    Info {
+        mesh: PathBuf,
+        #[arg(long)]
+        original: Option<PathBuf>,
+    },
+}
+
+#[derive(Subcommand)]
+pub enum ModelCmd {
+    /// Build a model from conformed meshes (one template).
+    Build {
+        /// conformed meshes
+        #[arg(required = true)]
+        meshes: Vec<PathBuf>,
+        #[arg(long)]
+        out: PathBuf,
+        /// procrustes (shape only), rigid (size kept) or none
+        #[arg(long, default_value = "procrustes")]
+        align: conformd::model::Align,
+        /// model one vertex group alone (e.g. torso)
+        #[arg(long)]
+        group: Option<String>,
+        #[arg(long, default_value_t = 30)]
+        max_modes: usize,
+        /// also compute compactness, generalisation and specificity (slower)
+        #[arg(long)]
+        quality: bool,
+    },
+    /// Mean and mean +/- k sigma along the first modes, as meshes and a PNG sheet.
+    Modes {
+        #[arg(long)]
+        model: PathBuf,
+        #[arg(long, default_value_t = 3)]
+        modes: usize,
+        #[arg(long, default_value_t = 3.0)]
+        sigma: f64,
+        #[arg(long, default_value = "three-quarter")]
+        view: String,
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Mode scores, reconstruction residual and Mahalanobis distance of meshes.
+    Score {
+        #[arg(long)]
+        model: PathBuf,
+        #[arg(required = true)]
+        meshes: Vec<PathBuf>,
+    },
+}

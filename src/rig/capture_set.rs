@@ -1,0 +1,399 @@
+//! The capture-set format (ARCHITECTURE.md): a folder `<id>/` holding one image per camera and
+//! `manifest.json`, written last. One writer (capture sessions and the virtual rig both
+//! use it) and one reader, which trusts nothing in the folder: names in the manifest are
+//! plain names inside the set, files are regular and size-limited, images are checked
+//! against the manifest before anyone matches them.
+
+use crate::paths::check_plain_name;
+use std::io::{Read, Write};
+use std::path::{Path, PathBuf};
+use std::time::{SystemTime, UNIX_EPOCH};
+
+/// Largest `manifest.json` read.
+const MAX_MANIFEST_BYTES: u64 = 1 << 20;
+/// Largest camera image read (a 12-bit 20-megapixel PNG fits).
+const MAX_IMAGE_BYTES: u64 = 256 << 20;
+/// Most cameras one set may list.
+const MAX_CAMERAS: usize = 256;
+
+/// `manifest.json` of a capture set (layout in ARCHITECTURE.md).
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Manifest {
+    pub format: String,
+    pub version: u32,
+    pub id: String,
+    pub station: String,
+    pub subject: Option<String>,
+    pub started_utc: String,
+    pub finished_utc: String,
+    pub trigger: TriggerRecord,
+    pub cameras: Vec<CameraRecord>,
+}
+
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct TriggerRecord {
+    pub kind: String,
+    pub sequence: u32,
+    pub box_time_us: Option<u64>,
+}
+
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct CameraRecord {
+    pub id: String,
+    pub pod: String,
+    pub side: String,
+    pub file: String,
+    pub width: u32,
+    pub height: u32,
+    pub sensor_timestamp_us: u64,
+    pub sequence: u32,
+    pub exposure_us: Option<u32>,
+}
+
+impl Manifest {
+    pub const FORMAT: &'static str = "conformd-capture";
+    pub const VERSION: u32 = 1;
+
+    /// Checks what serde cannot: format and version, plain and distinct ids and file
+    /// names, a pod and side for every camera, sizes within reason.
+    pub fn check(&self) -> Result<(), String> {
+        if self.format != Self::FORMAT || self.version != Self::VERSION {
+            return Err(format!(
+                "format '{}' version {} is not {} {}",
+                self.format.escape_default(),
+                self.version,
+                Self::FORMAT,
+                Self::VERSION
+            ));
+        }
+        check_plain_name("capture id", &self.id)?;
+        if self.cameras.is_empty() || self.cameras.len() > MAX_CAMERAS {
+            return Err(format!(
+                "lists {} cameras (1 to {MAX_CAMERAS})",
+                self.cameras.len()
+            ));
+        }
+        let mut ids = std::collections::BTreeSet::new();
+        let mut files = std::collections::BTreeSet::new();
+        let mut places = std::collections::BTreeSet::new();
+        for c in &self.cameras {
+            check_plain_name("camera id", &c.id)?;
+            check_plain_name(&format!("camera {}'s file", c.id), &c.file)?;
+            check_plain_name(&format!("camera {}'s pod", c.id), &c.pod)?;
+            check_plain_name(&format!("camera {}'s side", c.id), &c.side)?;
+            if !(1..=20_000).contains(&c.width) || !(1..=20_000).contains(&c.height) {
+                return Err(format!(
+                    "camera {}: {}x{} is not an image size",
+                    c.id, c.width, c.height
+                ));
+            }
+            if !ids.insert(&c.id) {
+                return Err(format!("two cameras have the id '{}'", c.id));
+            }
+            if !files.insert(&c.file) {
+                return Err(format!("two cameras share the file '{}'", c.file));
+            }
+            if !places.insert((&c.pod, &c.side)) {
+                return Err(format!(
+                    "two cameras are the {} camera of pod {}",
+                    c.side, c.pod
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// Reads and checks a set's manifest (see [`CaptureSetDir::open`]).
+    pub fn read(dir: &Path) -> Result<Manifest, CaptureSetError> {
+        CaptureSetDir::open(dir).map(|s| s.manifest)
+    }
+}
+
+/// UTC time as `YYYYMMDDTHHMMSS.mmmZ` (sortable, safe in file names).
+pub fn utc_stamp(t: SystemTime) -> String {
+    let d = t.duration_since(UNIX_EPOCH).unwrap_or_default();
+    let secs = d.as_secs() as i64;
+    let (days, rem) = (secs.div_euclid(86_400), secs.rem_euclid(86_400));
+    // civil date from days since 1970-01-01 (H. Hinnant's algorithm)
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z.rem_euclid(146_097);
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let day = doy - (153 * mp + 2) / 5 + 1;
+    let month = if mp < 10 { mp + 3 } else { mp - 9 };
+    let year = yoe + era * 400 + if month <= 2 { 1 } else { 0 };
+    format!(
+        "{year:04}{month:02}{day:02}T{:02}{:02}{:02}.{:03}Z",
+        rem / 3600,
+        rem % 3600 / 60,
+        rem % 60,
+        d.subsec_millis()
+    )
+}
+
+/// Why a capture set could not be read or written. Every variant names the file.
+#[derive(Debug, thiserror::Error)]
+pub enum CaptureSetError {
+    #[error("{dir}: no manifest.json, so this is not a complete capture set")]
+    NoManifest { dir: String },
+    #[error("{path}: not a valid capture manifest: {msg}")]
+    Manifest { path: String, msg: String },
+    #[error("{dir}: no {side} camera of pod {pod} in the manifest")]
+    MissingCamera {
+        dir: String,
+        pod: String,
+        side: String,
+    },
+    #[error("camera {camera}: {path}: {msg}")]
+    Image {
+        camera: String,
+        path: String,
+        msg: String,
+    },
+    #[error("{path}: {source}")]
+    Io {
+        path: String,
+        source: std::io::Error,
+    },
+}
+
+impl CaptureSetError {
+    /// The file the error is about.
+    pub fn path(&self) -> &str {
+        match self {
+            CaptureSetError::NoManifest { dir } | CaptureSetError::MissingCamera { dir, .. } => dir,
+            CaptureSetError::Manifest { path, .. }
+            | CaptureSetError::Image { path, .. }
+            | CaptureSetError::Io { path, .. } => path,
+        }
+    }
+
+    /// True when the set itself is at fault (processing it again cannot help); false when
+    /// the machine is (a read or write that failed may succeed later).
+    pub fn is_permanent(&self) -> bool {
+        !matches!(self, CaptureSetError::Io { .. })
+    }
+}
+
+fn io_err(path: &Path) -> impl Fn(std::io::Error) -> CaptureSetError + '_ {
+    move |source| CaptureSetError::Io {
+        path: path.display().to_string(),
+        source,
+    }
+}
+
+/// A capture set on disk whose manifest has been read and checked.
+#[derive(Debug, Clone)]
+pub struct CaptureSetDir {
+    pub dir: PathBuf,
+    pub manifest: Manifest,
+}
+
+impl CaptureSetDir {
+    /// Opens the set in `dir`: reads `manifest.json` (a regular file of at most 1 MiB) and
+    /// checks it ([`Manifest::check`]). A missing manifest means an incomplete set.
+    pub fn open(dir: &Path) -> Result<CaptureSetDir, CaptureSetError> {
+        let p = dir.join("manifest.json");
+        let bad = |msg: String| CaptureSetError::Manifest {
+            path: p.display().to_string(),
+            msg,
+        };
+        if !dir.is_dir() {
+            return Err(CaptureSetError::NoManifest {
+                dir: format!("{} (not a folder)", dir.display()),
+            });
+        }
+        match std::fs::symlink_metadata(&p) {
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+                return Err(CaptureSetError::NoManifest {
+                    dir: dir.display().to_string(),
+                });
+            }
+            Err(e) => return Err(io_err(&p)(e)),
+            Ok(m) if !m.is_file() => return Err(bad("not a regular file".into())),
+            Ok(_) => {}
+        }
+        let bytes = read_regular(&p, MAX_MANIFEST_BYTES).map_err(|e| match e {
+            ReadError::Io(source) => io_err(&p)(source),
+            ReadError::Refused(msg) => bad(msg),
+        })?;
+        let manifest: Manifest = serde_json::from_slice(&bytes).map_err(|e| bad(e.to_string()))?;
+        manifest.check().map_err(bad)?;
+        Ok(CaptureSetDir {
+            dir: dir.to_path_buf(),
+            manifest,
+        })
+    }
+
+    /// The set's id (its folder's name as the manifest gives it).
+    pub fn id(&self) -> &str {
+        &self.manifest.id
+    }
+
+    /// The record of pod `pod`'s `side` camera.
+    pub fn camera(&self, pod: &str, side: &str) -> Result<&CameraRecord, CaptureSetError> {
+        self.manifest
+            .cameras
+            .iter()
+            .find(|c| c.pod == pod && c.side == side)
+            .ok_or_else(|| CaptureSetError::MissingCamera {
+                dir: self.dir.display().to_string(),
+                pod: pod.into(),
+                side: side.into(),
+            })
+    }
+
+    /// Reads pod `pod`'s `side` camera image as 8-bit grey, checked against the size the
+    /// manifest gives and against `expected` (the calibration's). The file must be a
+    /// regular file inside the set: a symbolic link out of it is refused.
+    pub fn grey_image(
+        &self,
+        pod: &str,
+        side: &str,
+        expected: (u32, u32),
+    ) -> Result<image::GrayImage, CaptureSetError> {
+        let cam = self.camera(pod, side)?;
+        let path = self.dir.join(&cam.file);
+        let fail = |msg: String| CaptureSetError::Image {
+            camera: cam.id.clone(),
+            path: path.display().to_string(),
+            msg,
+        };
+        let inside = match (path.canonicalize(), self.dir.canonicalize()) {
+            (Ok(file), Ok(dir)) => file.starts_with(&dir),
+            (Err(e), _) if e.kind() == std::io::ErrorKind::NotFound => {
+                return Err(fail("the image file is missing".into()));
+            }
+            (Err(e), _) | (_, Err(e)) => return Err(io_err(&path)(e)),
+        };
+        if !inside {
+            return Err(fail("the file links outside the capture set".into()));
+        }
+        let bytes = read_regular(&path, MAX_IMAGE_BYTES).map_err(|e| match e {
+            ReadError::Io(source) => io_err(&path)(source),
+            ReadError::Refused(msg) => fail(msg),
+        })?;
+        let img = image::load_from_memory(&bytes)
+            .map_err(|e| fail(format!("not a readable image: {e}")))?
+            .to_luma8();
+        let got = img.dimensions();
+        if got != (cam.width, cam.height) {
+            return Err(fail(format!(
+                "the image is {}x{}, the manifest says {}x{}",
+                got.0, got.1, cam.width, cam.height
+            )));
+        }
+        if got != expected {
+            return Err(fail(format!(
+                "the image is {}x{}, the calibration is for {}x{}",
+                got.0, got.1, expected.0, expected.1
+            )));
+        }
+        Ok(img)
+    }
+}
+
+enum ReadError {
+    Io(std::io::Error),
+    Refused(String),
+}
+
+/// A regular file of at most `max` bytes.
+fn read_regular(path: &Path, max: u64) -> Result<Vec<u8>, ReadError> {
+    let f = std::fs::File::open(path).map_err(ReadError::Io)?;
+    let meta = f.metadata().map_err(ReadError::Io)?;
+    if !meta.is_file() {
+        return Err(ReadError::Refused("not a regular file".into()));
+    }
+    if meta.len() > max {
+        return Err(ReadError::Refused(format!(
+            "{} bytes, more than the {max} allowed",
+            meta.len()
+        )));
+    }
+    let mut bytes = Vec::with_capacity(meta.len() as usize);
+    f.take(max + 1)
+        .read_to_end(&mut bytes)
+        .map_err(ReadError::Io)?;
+    Ok(bytes)
+}
+
+/// Writes bytes to a file and syncs it.
+fn write_synced(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    let mut f = std::fs::File::create(path)?;
+    f.write_all(bytes)?;
+    f.sync_all()
+}
+
+fn sync_dir(dir: &Path) {
+    if let Ok(d) = std::fs::File::open(dir) {
+        let _ = d.sync_all();
+    }
+}
+
+/// Writes a capture set under `root` as `root/<manifest.id>/`: into `root/.<id>.partial/`
+/// first, every file synced, `manifest.json` last, then the folder renamed into place and
+/// `root` synced, so a reader (or a crash) never sees half a set. `files` are (name,
+/// bytes), plain names. On failure the partial folder is removed. Returns the set's folder.
+pub fn write_capture_set(
+    root: &Path,
+    manifest: &Manifest,
+    files: &[(String, Vec<u8>)],
+) -> Result<PathBuf, CaptureSetError> {
+    let bad = |msg: String| CaptureSetError::Manifest {
+        path: root.join(&manifest.id).display().to_string(),
+        msg,
+    };
+    manifest.check().map_err(bad)?;
+    for (name, _) in files {
+        check_plain_name("file", name).map_err(bad)?;
+    }
+    let partial = root.join(format!(".{}.partial", manifest.id));
+    let dir = root.join(&manifest.id);
+    if dir.exists() {
+        return Err(CaptureSetError::Io {
+            path: dir.display().to_string(),
+            source: std::io::Error::new(
+                std::io::ErrorKind::AlreadyExists,
+                "a set with this id exists",
+            ),
+        });
+    }
+    let result = (|| {
+        std::fs::create_dir_all(&partial).map_err(io_err(&partial))?;
+        for (name, bytes) in files {
+            let p = partial.join(name);
+            write_synced(&p, bytes).map_err(io_err(&p))?;
+        }
+        // the manifest last: a set without one is incomplete
+        let json = serde_json::to_vec_pretty(manifest).expect("a manifest serialises");
+        let mp = partial.join("manifest.json");
+        write_synced(&mp, &json).map_err(io_err(&mp))?;
+        sync_dir(&partial);
+        std::fs::rename(&partial, &dir).map_err(io_err(&dir))?;
+        sync_dir(root);
+        Ok(dir.clone())
+    })();
+    if result.is_err() {
+        let _ = std::fs::remove_dir_all(&partial);
+    }
+    result
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::time::Duration;
+
+    #[test]
+    fn utc_stamps_are_civil_dates() {
+        let t = UNIX_EPOCH + Duration::from_millis(1_795_313_106_789); // 2026-11-22T02:05:06.789Z
+        assert_eq!(utc_stamp(t), "20261122T020506.789Z");
+        assert_eq!(
+            utc_stamp(UNIX_EPOCH + Duration::from_secs(951_782_400)),
+            "20000229T000000.000Z"
+        );
+    }
+}

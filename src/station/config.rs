@@ -1,0 +1,432 @@
+//! The station file: one typed, checked reader for every section (`[station]`,
+//! `[template]`, `[conform]`, `[rig]`, `[capture]`, `[[cameras]]`, `[trigger]`, `[model]`,
+//! `[daemon]`). Paths are taken relative to the file; unknown keys are refused with their
+//! line; every problem is collected, not just the first. `config/station.example.toml`
+//! shows every key.
+
+use crate::conform::ConformOptions;
+use crate::rig::station::{CameraSection, CaptureSection, RigConfig, TriggerSection};
+use crate::template::TemplateSource;
+use serde::de::{DeserializeOwned, IgnoredAny, MapAccess, Visitor};
+use std::path::{Path, PathBuf};
+
+/// `[station]`: who the station is and where its data lives.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct StationSection {
+    /// the station's name, written into every capture set
+    pub name: String,
+    /// the folder holding `captures/`, `incoming/` and `results/`
+    pub data: PathBuf,
+}
+
+impl Default for StationSection {
+    fn default() -> Self {
+        StationSection {
+            name: "station".into(),
+            data: PathBuf::from("."),
+        }
+    }
+}
+
+impl StationSection {
+    pub fn captures(&self) -> PathBuf {
+        self.data.join("captures")
+    }
+    pub fn incoming(&self) -> PathBuf {
+        self.data.join("incoming")
+    }
+    pub fn results(&self) -> PathBuf {
+        self.data.join("results")
+    }
+}
+
+/// `[rig]`: the stereo rig that reconstructs every capture.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RigSection {
+    /// the rig file (pods, lenses, poses, working volume, reconstruction settings)
+    pub file: PathBuf,
+    /// a folder of measured pod calibrations (`<pod>.yml`) replacing the rig file's
+    pub calibration: Option<PathBuf>,
+    /// scans as meshes with holes (each pod's depth grid triangulated) instead of fused
+    /// point clouds
+    #[serde(default)]
+    pub mesh: bool,
+}
+
+/// `[model]`: the station's shape model.
+#[derive(Debug, Clone, Default, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ModelSection {
+    /// the current model file; every result is scored against it when it exists
+    pub file: Option<PathBuf>,
+    /// rebuild the model after this many new results (0: only on request)
+    pub rebuild_every: usize,
+}
+
+/// `[daemon]`: how the station service runs.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct DaemonSection {
+    /// jobs at once (0: as many as the machine's cores allow)
+    pub workers: usize,
+    /// seconds between full rescans of the capture folders
+    pub rescan_s: f64,
+    /// the HTTP server's address
+    pub listen: String,
+    /// bearer token for mutating API calls; required when `listen` is not loopback
+    pub token: Option<String>,
+    /// a job running longer than this is stopped and failed
+    pub job_timeout_s: f64,
+    /// attempts of a job whose failure was the machine's, not the capture's
+    pub max_attempts: u32,
+}
+
+impl Default for DaemonSection {
+    fn default() -> Self {
+        DaemonSection {
+            workers: 0,
+            rescan_s: 30.0,
+            listen: "127.0.0.1:8470".into(),
+            token: None,
+            job_timeout_s: 300.0,
+            max_attempts: 3,
+        }
+    }
+}
+
+/// A whole station file, checked, with paths made absolute against its folder.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct StationConfig {
+    pub file: PathBuf,
+    pub station: StationSection,
+    pub template: Option<TemplateSource>,
+    pub conform: ConformOptions,
+    pub rig: Option<RigSection>,
+    pub capture: Option<CaptureSection>,
+    pub cameras: Vec<CameraSection>,
+    pub trigger: Option<TriggerSection>,
+    pub model: ModelSection,
+    pub daemon: DaemonSection,
+}
+
+/// One problem in a station file; `line` is 1-based.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct ConfigProblem {
+    pub line: Option<usize>,
+    pub msg: String,
+}
+
+/// Every problem found in a station file, each with its line when known.
+#[derive(Debug, thiserror::Error)]
+pub struct ConfigError {
+    pub path: String,
+    pub problems: Vec<ConfigProblem>,
+}
+
+impl std::fmt::Display for ConfigError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        if self.problems.len() > 1 {
+            write!(f, "{}: {} problems", self.path, self.problems.len())?;
+        }
+        for (i, p) in self.problems.iter().enumerate() {
+            let sep = if self.problems.len() > 1 {
+                "\n  "
+            } else if i > 0 {
+                "\n"
+            } else {
+                ""
+            };
+            match p.line {
+                Some(l) if self.problems.len() > 1 => write!(f, "{sep}line {l}: {}", p.msg)?,
+                Some(l) => write!(f, "{}:{l}: {}", self.path, p.msg)?,
+                None if self.problems.len() > 1 => write!(f, "{sep}{}", p.msg)?,
+                None => write!(f, "{}: {}", self.path, p.msg)?,
+            }
+        }
+        Ok(())
+    }
+}
+
+const SECTIONS: [&str; 9] = [
+    "station", "template", "conform", "rig", "capture", "cameras", "trigger", "model", "daemon",
+];
+
+/// True when a TOML table is a station file (it has one of the station's sections)
+/// rather than, say, a bare `conform.toml`.
+pub fn is_station_file(table: &toml::Table) -> bool {
+    SECTIONS.iter().any(|k| table.contains_key(*k))
+}
+
+/// Largest station file read.
+const MAX_CONFIG_BYTES: u64 = 1 << 20;
+
+/// 1-based line of a byte offset.
+fn line_of(text: &str, offset: usize) -> usize {
+    text[..offset.min(text.len())].matches('\n').count() + 1
+}
+
+/// Deserializes the top-level table `key` of `text` alone (other tables are skipped), so
+/// each section's errors come with their place in the whole file.
+fn section<T: DeserializeOwned>(text: &str, key: &str) -> Result<Option<T>, toml::de::Error> {
+    struct Pick<'k, T>(&'k str, std::marker::PhantomData<T>);
+    impl<'de, T: DeserializeOwned> Visitor<'de> for Pick<'_, T> {
+        type Value = Option<T>;
+        fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+            f.write_str("a table")
+        }
+        fn visit_map<A: MapAccess<'de>>(self, mut map: A) -> Result<Option<T>, A::Error> {
+            let mut out = None;
+            while let Some(k) = map.next_key::<String>()? {
+                if k == self.0 {
+                    out = Some(map.next_value::<T>()?);
+                } else {
+                    map.next_value::<IgnoredAny>()?;
+                }
+            }
+            Ok(out)
+        }
+    }
+    use serde::Deserializer as _;
+    toml::de::Deserializer::parse(text)?.deserialize_map(Pick(key, std::marker::PhantomData))
+}
+
+impl StationConfig {
+    /// Reads and checks a station file.
+    ///
+    /// Example: `conformd check config/station.example.toml`; see `tests/pipeline.rs`.
+    pub fn load(path: &Path) -> Result<StationConfig, ConfigError> {
+        let name = path.display().to_string();
+        let fail = |msg: String| ConfigError {
+            path: name.clone(),
+            problems: vec![ConfigProblem { line: None, msg }],
+        };
+        let text = crate::mesh::io::read_text_limited(path, MAX_CONFIG_BYTES).map_err(|e| {
+            let msg = e.to_string();
+            fail(
+                msg.strip_prefix(&format!("{name}: "))
+                    .unwrap_or(&msg)
+                    .into(),
+            )
+        })?;
+        Self::parse(&text, path)
+    }
+
+    /// Checks the text of a station file that lives at `path` (paths in it are taken from
+    /// its folder).
+    pub fn parse(text: &str, path: &Path) -> Result<StationConfig, ConfigError> {
+        let mut problems = Vec::new();
+        let mut add = |line: Option<usize>, msg: String| problems.push(ConfigProblem { line, msg });
+        // syntax first: every error the parser can recover from
+        let (doc, syntax) = toml::de::DeTable::parse_recoverable(text);
+        for e in &syntax {
+            add(
+                e.span().map(|s| line_of(text, s.start)),
+                e.message().to_string(),
+            );
+        }
+        if !syntax.is_empty() {
+            return Err(ConfigError {
+                path: path.display().to_string(),
+                problems,
+            });
+        }
+        let mut header = std::collections::BTreeMap::new();
+        for (k, _) in doc.get_ref().iter() {
+            let key: &str = k.get_ref();
+            let line = line_of(text, k.span().start);
+            header.insert(key.to_string(), line);
+            if !SECTIONS.contains(&key) {
+                add(
+                    Some(line),
+                    format!(
+                        "unknown section or key '{}' (sections: {})",
+                        key.escape_default(),
+                        SECTIONS.join(", ")
+                    ),
+                );
+            }
+        }
+        let at = |k: &str| header.get(k).copied();
+        macro_rules! read {
+            ($key:literal, $t:ty) => {
+                match section::<$t>(text, $key) {
+                    Ok(v) => v,
+                    Err(e) => {
+                        let line = e.span().map(|s| line_of(text, s.start));
+                        let quoted = line
+                            .and_then(|l| text.lines().nth(l - 1))
+                            .map(|l| {
+                                format!(" (`{}`)", l.trim().chars().take(60).collect::<String>())
+                            })
+                            .unwrap_or_default();
+                        add(
+                            line.or(at($key)),
+                            format!("[{}]: {}{quoted}", $key, e.message()),
+                        );
+                        None
+                    }
+                }
+            };
+        }
+        let station: StationSection = read!("station", StationSection).unwrap_or_default();
+        let template = read!("template", TemplateSource);
+        let conform: ConformOptions = read!("conform", ConformOptions).unwrap_or_default();
+        let rig = read!("rig", RigSection);
+        let capture = read!("capture", CaptureSection);
+        let cameras: Vec<CameraSection> = read!("cameras", Vec<CameraSection>).unwrap_or_default();
+        let trigger = read!("trigger", TriggerSection);
+        let model: ModelSection = read!("model", ModelSection).unwrap_or_default();
+        let daemon: DaemonSection = read!("daemon", DaemonSection).unwrap_or_default();
+
+        // what the types cannot check
+        if let Err(e) = conform.validate() {
+            add(at("conform"), format!("[conform]: {e}"));
+        }
+        if let Some(t) = &template
+            && let Err(e) = t.check()
+        {
+            add(at("template"), format!("[template]: {e}"));
+        }
+        if let Err(e) = crate::paths::check_plain_name("station name", &station.name) {
+            add(at("station"), format!("[station]: {e}"));
+        }
+        let mut ids = std::collections::BTreeSet::new();
+        for c in &cameras {
+            if let Err(e) = c.check() {
+                add(at("cameras"), format!("[[cameras]]: {e}"));
+            }
+            if !ids.insert(&c.id) {
+                add(
+                    at("cameras"),
+                    format!("[[cameras]]: two cameras have the id '{}'", c.id),
+                );
+            }
+        }
+        if capture.is_some() && cameras.is_empty() {
+            add(at("capture"), "[[cameras]]: no camera is configured".into());
+        }
+        if !(daemon.rescan_s >= 0.5 && daemon.rescan_s <= 86_400.0) {
+            add(
+                at("daemon"),
+                format!(
+                    "[daemon]: rescan_s = {} is not 0.5 to 86400",
+                    daemon.rescan_s
+                ),
+            );
+        }
+        if !(daemon.job_timeout_s >= 1.0 && daemon.job_timeout_s <= 86_400.0) {
+            add(
+                at("daemon"),
+                format!(
+                    "[daemon]: job_timeout_s = {} is not 1 to 86400",
+                    daemon.job_timeout_s
+                ),
+            );
+        }
+        if !(1..=100).contains(&daemon.max_attempts) || daemon.workers > 256 {
+            add(
+                at("daemon"),
+                "[daemon]: max_attempts must be 1 to 100, workers at most 256".into(),
+            );
+        }
+        match daemon.listen.parse::<std::net::SocketAddr>() {
+            Err(_) => add(
+                at("daemon"),
+                format!(
+                    "[daemon]: listen = '{}' is not an address:port",
+                    daemon.listen
+                ),
+            ),
+            Ok(a) if !a.ip().is_loopback() && daemon.token.as_deref().unwrap_or("").len() < 16 => {
+                add(
+                    at("daemon"),
+                    format!(
+                        "[daemon]: listening on {a}, beyond this machine, needs a token of 16 or more characters"
+                    ),
+                )
+            }
+            Ok(_) => {}
+        }
+        if !problems.is_empty() {
+            problems.sort_by_key(|p| p.line.unwrap_or(usize::MAX));
+            return Err(ConfigError {
+                path: path.display().to_string(),
+                problems,
+            });
+        }
+        let mut cfg = StationConfig {
+            file: path.to_path_buf(),
+            station,
+            template,
+            conform,
+            rig,
+            capture,
+            cameras,
+            trigger,
+            model,
+            daemon,
+        };
+        cfg.resolve_paths();
+        Ok(cfg)
+    }
+
+    /// Makes every relative path absolute against the file's folder.
+    fn resolve_paths(&mut self) {
+        let base = self.file.parent().unwrap_or(Path::new(".")).to_path_buf();
+        let abs = |p: &mut PathBuf| {
+            if p.is_relative() {
+                *p = base.join(&*p);
+            }
+        };
+        abs(&mut self.station.data);
+        if let Some(t) = &mut self.template {
+            t.resolve(&base);
+        }
+        if let Some(r) = &mut self.rig {
+            abs(&mut r.file);
+            r.calibration.iter_mut().for_each(abs);
+        }
+        if let Some(c) = &mut self.capture {
+            c.root.iter_mut().for_each(abs);
+        }
+        for c in &mut self.cameras {
+            c.replay.iter_mut().flatten().for_each(abs);
+        }
+        self.model.file.iter_mut().for_each(abs);
+    }
+
+    /// The rig part, for capture sessions: `[capture]`, `[trigger]`, `[[cameras]]`.
+    /// Captures go to `[capture] root`, else the station's `captures/`.
+    pub fn rig_config(&self) -> Result<RigConfig, ConfigError> {
+        let fail = |msg: &str| ConfigError {
+            path: self.file.display().to_string(),
+            problems: vec![ConfigProblem {
+                line: None,
+                msg: msg.into(),
+            }],
+        };
+        let mut capture = self
+            .capture
+            .clone()
+            .ok_or_else(|| fail("no [capture] section: this station does not capture"))?;
+        if self.cameras.is_empty() {
+            return Err(fail("[[cameras]]: no camera is configured"));
+        }
+        let root = capture
+            .root
+            .clone()
+            .unwrap_or_else(|| self.station.captures());
+        capture.root = Some(root.clone());
+        if capture.options.station == crate::rig::capture::CaptureOptions::default().station {
+            capture.options.station = self.station.name.clone();
+        }
+        Ok(RigConfig {
+            root,
+            capture,
+            trigger: self.trigger.clone(),
+            cameras: self.cameras.clone(),
+        })
+    }
+}

@@ -1,0 +1,563 @@
+//! The station pipeline: what a station runs for every capture, as one call held for the
+//! life of a process. Capture set -> scan (stereo) -> conformed mesh -> model scores ->
+//! results folder, in memory until [`Processed::write`] renames a finished folder into
+//! place. Every failure is a [`StageError`] that names the stage, the capture, the file,
+//! and whether the capture (permanent) or the machine (retryable) is at fault.
+
+use crate::conform::{self, ConformError, ConformOptions, ConformReport, IterationReport};
+use crate::mesh::{Landmark, Mesh};
+use crate::model::{ModelError, Score, ShapeModel};
+use crate::rig::capture_set::{CaptureSetDir, CaptureSetError};
+use crate::station::config::StationConfig;
+use crate::stereo::reconstruct::{ReconstructError, ReconstructReport};
+use crate::stereo::rig::{Reconstruction, RigError};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, RwLock};
+use std::time::Instant;
+
+/// Fewest scan points worth conforming onto: fewer means the rig saw (almost) nothing.
+pub const MIN_SCAN_POINTS: usize = 200;
+
+/// The stages of [`Pipeline::process`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Stage {
+    Read,
+    Reconstruct,
+    Conform,
+    Score,
+    Write,
+}
+
+impl std::fmt::Display for Stage {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Stage::Read => "read",
+            Stage::Reconstruct => "reconstruct",
+            Stage::Conform => "conform",
+            Stage::Score => "score",
+            Stage::Write => "write",
+        })
+    }
+}
+
+/// What went wrong inside a stage.
+#[derive(Debug, thiserror::Error)]
+pub enum StageCause {
+    #[error(transparent)]
+    CaptureSet(#[from] CaptureSetError),
+    #[error("{0}; images: {1}")]
+    Reconstruct(ReconstructError, String),
+    #[error(
+        "the scan has {points} points (at least {MIN_SCAN_POINTS} are needed): the rig saw no subject in its working volume"
+    )]
+    EmptyScan { points: usize },
+    #[error(transparent)]
+    Conform(#[from] ConformError),
+    #[error(transparent)]
+    Model(#[from] ModelError),
+    #[error("{path}: {source}")]
+    Io {
+        path: String,
+        source: std::io::Error,
+    },
+    #[error("cancelled")]
+    Cancelled,
+}
+
+/// A failed stage of one capture.
+#[derive(Debug, thiserror::Error)]
+#[error("capture {capture}: {stage}: {cause}")]
+pub struct StageError {
+    pub stage: Stage,
+    pub capture: String,
+    /// true: the capture itself is at fault and processing it again cannot help; false:
+    /// the machine is (disk, memory, a stop), and a later attempt may succeed
+    pub permanent: bool,
+    #[source]
+    pub cause: StageCause,
+}
+
+impl StageError {
+    fn new(stage: Stage, capture: &str, cause: StageCause) -> StageError {
+        let permanent = match &cause {
+            StageCause::CaptureSet(e) => e.is_permanent(),
+            StageCause::Io { .. } | StageCause::Cancelled => false,
+            StageCause::Conform(ConformError::Cancelled) => false,
+            _ => true,
+        };
+        StageError {
+            stage,
+            capture: capture.to_string(),
+            permanent,
+            cause,
+        }
+    }
+}
+
+/// Why a pipeline could not be set up from a station file.
+#[derive(Debug, thiserror::Error)]
+pub enum PipelineError {
+    #[error("{0}: no [rig] section, so captures cannot be reconstructed")]
+    NoRig(String),
+    #[error("{0}: no [template] section, so there is nothing to conform")]
+    NoTemplate(String),
+    #[error("template: {0}")]
+    Template(#[from] crate::mesh::FileError),
+    #[error(transparent)]
+    Rig(#[from] RigError),
+    #[error(transparent)]
+    Model(#[from] ModelError),
+}
+
+/// What a long stage reports while it runs.
+pub enum Progress<'a> {
+    Stage(Stage),
+    Iteration(&'a IterationReport),
+}
+
+/// A cancel flag and a progress callback for [`Pipeline::process`].
+#[derive(Default)]
+pub struct Control<'a> {
+    pub cancel: Option<&'a AtomicBool>,
+    pub progress: Option<&'a mut dyn FnMut(Progress)>,
+}
+
+impl Control<'_> {
+    fn cancelled(&self) -> bool {
+        self.cancel.is_some_and(|c| c.load(Ordering::Relaxed))
+    }
+    fn stage(&mut self, s: Stage) {
+        if let Some(p) = self.progress.as_mut() {
+            p(Progress::Stage(s));
+        }
+    }
+}
+
+/// Seconds spent in each stage of one capture.
+#[derive(Debug, Clone, Default, serde::Serialize)]
+pub struct StageSeconds {
+    pub read: f64,
+    pub reconstruct: f64,
+    pub conform: f64,
+    pub score: f64,
+    pub preview: f64,
+    pub total: f64,
+}
+
+/// `report.json` of a result.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct ProcessReport {
+    pub format: &'static str,
+    pub version: u32,
+    pub capture: String,
+    pub station: String,
+    pub subject: Option<String>,
+    pub reconstruction: ReconstructReport,
+    pub conformation: ConformReport,
+    /// against the station's current model, when it has one
+    pub scores: Option<Score>,
+    pub seconds: StageSeconds,
+}
+
+impl std::fmt::Display for ProcessReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let c = &self.conformation;
+        write!(
+            f,
+            "capture {}: scan of {} points; conformed {} vertices in {} iterations, mean distance {:.3}% of the diagonal, {} filled, {} folded; {:.2} s (reconstruct {:.2}, conform {:.2})",
+            self.capture,
+            c.scan_points,
+            c.template_vertices,
+            c.iterations.len(),
+            c.mean_distance_relative * 100.0,
+            c.filled,
+            c.folded_triangles,
+            self.seconds.total,
+            self.seconds.reconstruct,
+            self.seconds.conform
+        )?;
+        if let Some(s) = &self.scores {
+            let z: Vec<String> = s
+                .scores_sd
+                .iter()
+                .take(3)
+                .map(|z| format!("{z:+.2}"))
+                .collect();
+            write!(
+                f,
+                "; scores (sd) [{}], mahalanobis {:.2}",
+                z.join(", "),
+                s.mahalanobis
+            )?;
+        }
+        Ok(())
+    }
+}
+
+/// One processed capture, in memory.
+pub struct Processed {
+    pub id: String,
+    pub scan: Mesh,
+    pub conformed: Mesh,
+    pub report: ProcessReport,
+    pub preview: image::RgbImage,
+}
+
+/// The files of a result folder.
+pub const RESULT_FILES: [&str; 4] = ["scan.ply", "conformed.ply", "report.json", "preview.png"];
+
+impl Processed {
+    /// Writes `results/<id>/` with [`RESULT_FILES`]: into a hidden temporary folder
+    /// first, every file synced, then renamed into place (an older result of the same
+    /// capture is replaced only then), so there is never half a result under its id.
+    /// Returns the folder.
+    pub fn write(&self, results: &Path) -> Result<PathBuf, StageError> {
+        let fail = |path: &Path, source: std::io::Error| {
+            StageError::new(
+                Stage::Write,
+                &self.id,
+                StageCause::Io {
+                    path: path.display().to_string(),
+                    source,
+                },
+            )
+        };
+        crate::paths::check_plain_name("capture id", &self.id).map_err(|m| {
+            fail(
+                results,
+                std::io::Error::new(std::io::ErrorKind::InvalidInput, m),
+            )
+        })?;
+        std::fs::create_dir_all(results).map_err(|e| fail(results, e))?;
+        let tag = format!("{}-{}", std::process::id(), unique());
+        let tmp = results.join(format!(".{}.partial-{tag}", self.id));
+        let dir = results.join(&self.id);
+        let enc = crate::mesh::io::PlyEncoding::BinaryLittleEndian;
+        let json = serde_json::to_vec_pretty(&self.report).expect("a report serialises");
+        let files: [(&str, Vec<u8>); 4] = [
+            ("scan.ply", crate::mesh::io::ply_bytes(&self.scan, enc)),
+            (
+                "conformed.ply",
+                crate::mesh::io::ply_bytes(&self.conformed, enc),
+            ),
+            ("report.json", json),
+            ("preview.png", crate::render::png_bytes(&self.preview)),
+        ];
+        let result = (|| {
+            std::fs::create_dir(&tmp).map_err(|e| fail(&tmp, e))?;
+            for (name, bytes) in &files {
+                let p = tmp.join(name);
+                write_synced(&p, bytes).map_err(|e| fail(&p, e))?;
+                pause_for_crash_tests();
+            }
+            sync_dir(&tmp);
+            let old = results.join(format!(".{}.old-{tag}", self.id));
+            let replacing = dir.exists();
+            if replacing {
+                std::fs::rename(&dir, &old).map_err(|e| fail(&dir, e))?;
+            }
+            std::fs::rename(&tmp, &dir).map_err(|e| fail(&dir, e))?;
+            sync_dir(results);
+            if replacing {
+                let _ = std::fs::remove_dir_all(&old);
+            }
+            Ok(dir.clone())
+        })();
+        if result.is_err() {
+            let _ = std::fs::remove_dir_all(&tmp);
+        }
+        result
+    }
+}
+
+/// Removes what an interrupted [`Processed::write`] left in `results` (hidden
+/// `.<id>.partial-*` and `.<id>.old-*` folders); returns how many. A finished result is
+/// never touched.
+pub fn remove_partial_results(results: &Path) -> std::io::Result<usize> {
+    let mut n = 0;
+    let Ok(rd) = std::fs::read_dir(results) else {
+        return Ok(0);
+    };
+    for e in rd {
+        let e = e?;
+        let name = e.file_name().to_string_lossy().to_string();
+        if name.starts_with('.') && (name.contains(".partial-") || name.contains(".old-")) {
+            // an .old- folder whose result was never renamed in is the only copy: restore it
+            if let Some(id) = name.strip_prefix('.').and_then(|s| s.split(".old-").next())
+                && name.contains(".old-")
+                && !results.join(id).exists()
+            {
+                std::fs::rename(e.path(), results.join(id))?;
+                continue;
+            }
+            std::fs::remove_dir_all(e.path())?;
+            n += 1;
+        }
+    }
+    Ok(n)
+}
+
+/// Crash-safety tests kill a process while it writes a result; this environment
+/// variable (milliseconds) widens the window between files so the kill lands inside it.
+const PAUSE_ENV: &str = "CONFORMD_TEST_PAUSE_WRITE_MS";
+
+fn pause_for_crash_tests() {
+    if let Some(ms) = std::env::var(PAUSE_ENV)
+        .ok()
+        .and_then(|v| v.parse::<u64>().ok())
+    {
+        std::thread::sleep(std::time::Duration::from_millis(ms.min(10_000)));
+    }
+}
+
+fn unique() -> u128 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_nanos())
+        .unwrap_or(0)
+}
+
+fn write_synced(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    let mut f = std::fs::File::create(path)?;
+    f.write_all(bytes)?;
+    f.sync_all()
+}
+
+fn sync_dir(dir: &Path) {
+    if let Ok(d) = std::fs::File::open(dir) {
+        let _ = d.sync_all();
+    }
+}
+
+/// A station's processing set-up, held for the life of a process: the template with its
+/// landmarks and groups, the conformation options, the reconstruction with its cached
+/// rectification maps, and the current shape model (replaceable while running through
+/// [`Pipeline::model_handle`]).
+pub struct Pipeline {
+    pub station: String,
+    pub template: Mesh,
+    pub template_landmarks: Option<Vec<Landmark>>,
+    pub conform: ConformOptions,
+    pub reconstruction: Reconstruction,
+    /// scans as meshes with holes instead of point clouds
+    pub as_mesh: bool,
+    model: Arc<RwLock<Option<Arc<ShapeModel>>>>,
+}
+
+impl Pipeline {
+    /// Sets a pipeline up from a station file's `[template]`, `[conform]`, `[rig]` and
+    /// `[model]` (the model only when its file exists yet).
+    pub fn from_config(cfg: &StationConfig) -> Result<Pipeline, PipelineError> {
+        let name = cfg.file.display().to_string();
+        let rig = cfg.rig.as_ref().ok_or(PipelineError::NoRig(name.clone()))?;
+        let source = cfg
+            .template
+            .as_ref()
+            .ok_or(PipelineError::NoTemplate(name))?;
+        let (template, template_landmarks) = source.load()?;
+        let reconstruction = Reconstruction::load(&rig.file, rig.calibration.as_deref())?;
+        let model = match &cfg.model.file {
+            Some(p) if p.exists() => Some(Arc::new(ShapeModel::load(p)?)),
+            _ => None,
+        };
+        Ok(Pipeline {
+            station: cfg.station.name.clone(),
+            template,
+            template_landmarks,
+            conform: cfg.conform.clone(),
+            reconstruction,
+            as_mesh: rig.mesh,
+            model: Arc::new(RwLock::new(model)),
+        })
+    }
+
+    /// A handle through which another thread can replace the model between captures.
+    pub fn model_handle(&self) -> Arc<RwLock<Option<Arc<ShapeModel>>>> {
+        self.model.clone()
+    }
+
+    /// Processes the capture set in `dir`: reads and checks it, reconstructs the scan,
+    /// conforms the template onto it (aligned automatically: station scans carry no
+    /// landmarks), scores the result against the current model and renders a preview.
+    /// Nothing is written; see [`Processed::write`].
+    ///
+    /// Example: `conformd process captures/<id> --config station.toml --out results`;
+    /// see `tests/pipeline.rs`.
+    pub fn process(&mut self, dir: &Path, control: &mut Control) -> Result<Processed, StageError> {
+        let t_all = Instant::now();
+        let fallback_id = dir
+            .file_name()
+            .map(|n| n.to_string_lossy().to_string())
+            .unwrap_or_default();
+        let mut seconds = StageSeconds::default();
+
+        control.stage(Stage::Read);
+        let t = Instant::now();
+        let set = CaptureSetDir::open(dir)
+            .map_err(|e| StageError::new(Stage::Read, &fallback_id, e.into()))?;
+        let id = set.id().to_string();
+        let images = read_pod_images(&set, &self.reconstruction.pods)
+            .map_err(|e| StageError::new(Stage::Read, &id, e.into()))?;
+        seconds.read = t.elapsed().as_secs_f64();
+        let stop = |stage| StageError::new(stage, &id, StageCause::Cancelled);
+        if control.cancelled() {
+            return Err(stop(Stage::Reconstruct));
+        }
+
+        control.stage(Stage::Reconstruct);
+        let t = Instant::now();
+        let (scan, reconstruction) = self
+            .reconstruction
+            .run(&images.pixels, self.as_mesh)
+            .map_err(|e| {
+                let seen = images.named(e.pod());
+                StageError::new(Stage::Reconstruct, &id, StageCause::Reconstruct(e, seen))
+            })?;
+        if scan.vertices.len() < MIN_SCAN_POINTS {
+            return Err(StageError::new(
+                Stage::Reconstruct,
+                &id,
+                StageCause::EmptyScan {
+                    points: scan.vertices.len(),
+                },
+            ));
+        }
+        seconds.reconstruct = t.elapsed().as_secs_f64();
+        if control.cancelled() {
+            return Err(stop(Stage::Conform));
+        }
+
+        control.stage(Stage::Conform);
+        let t = Instant::now();
+        let never = AtomicBool::new(false);
+        let cancel = control.cancel.unwrap_or(&never);
+        let conformed = {
+            let mut tick = |it: &IterationReport| {
+                if let Some(p) = control.progress.as_mut() {
+                    p(Progress::Iteration(it));
+                }
+            };
+            conform::conform_cancellable(
+                &self.template,
+                &scan,
+                None,
+                &self.conform,
+                &mut tick,
+                cancel,
+            )
+            .map_err(|e| StageError::new(Stage::Conform, &id, e.into()))?
+        };
+        seconds.conform = t.elapsed().as_secs_f64();
+
+        control.stage(Stage::Score);
+        let t = Instant::now();
+        let model = self.model.read().map(|m| m.clone()).unwrap_or(None);
+        let scores = model
+            .map(|m| m.score(&id, &conformed.mesh))
+            .transpose()
+            .map_err(|e| StageError::new(Stage::Score, &id, e.into()))?;
+        seconds.score = t.elapsed().as_secs_f64();
+
+        let t = Instant::now();
+        let preview = preview(&conformed.mesh, &scan);
+        seconds.preview = t.elapsed().as_secs_f64();
+        seconds.total = t_all.elapsed().as_secs_f64();
+        Ok(Processed {
+            report: ProcessReport {
+                format: "conformd-result",
+                version: 1,
+                capture: id.clone(),
+                station: set.manifest.station.clone(),
+                subject: set.manifest.subject.clone(),
+                reconstruction,
+                conformation: conformed.report,
+                scores,
+                seconds,
+            },
+            id,
+            scan,
+            conformed: conformed.mesh,
+            preview,
+        })
+    }
+}
+
+/// Every pod's images of a capture set, in the order of `pods`, with the cameras' names
+/// and files for later errors.
+pub struct PodPixels {
+    pub pixels: Vec<(Vec<u8>, Vec<u8>)>,
+    /// (pod, "camera ID (FILE)")
+    pub cameras: Vec<(String, String)>,
+}
+
+impl PodPixels {
+    /// The cameras of `pod`, for an error sentence.
+    pub fn named(&self, pod: &str) -> String {
+        self.cameras
+            .iter()
+            .filter(|(p, _)| p == pod)
+            .map(|(_, c)| c.as_str())
+            .collect::<Vec<_>>()
+            .join(", ")
+    }
+}
+
+/// Reads every pod's left and right image from a capture set, each checked against the
+/// pod's calibrated size, before any matching starts.
+pub fn read_pod_images(
+    set: &CaptureSetDir,
+    pods: &[crate::stereo::calib::Pod],
+) -> Result<PodPixels, CaptureSetError> {
+    let mut pixels = Vec::new();
+    let mut cameras = Vec::new();
+    for pod in pods {
+        let size = (pod.left.width, pod.left.height);
+        let mut pair = Vec::with_capacity(2);
+        for side in ["left", "right"] {
+            let img = set.grey_image(&pod.id, side, size)?;
+            let cam = set.camera(&pod.id, side)?;
+            cameras.push((
+                pod.id.clone(),
+                format!("camera {} ({})", cam.id, set.dir.join(&cam.file).display()),
+            ));
+            pair.push(img.into_raw());
+        }
+        let right = pair.pop().expect("two sides");
+        let left = pair.pop().expect("two sides");
+        pixels.push((left, right));
+    }
+    Ok(PodPixels { pixels, cameras })
+}
+
+/// The result's preview: the conformed mesh from two views, coloured by each vertex's
+/// distance to the scan.
+pub fn preview(conformed: &Mesh, scan: &Mesh) -> image::RgbImage {
+    use crate::render::{Colouring, RenderOptions, View};
+    let colouring = match crate::conform::correspond::ScanSurface::new(scan) {
+        Ok(surface) => Colouring::distances(
+            conformed
+                .vertices
+                .iter()
+                .map(|p| surface.distance(p))
+                .collect(),
+        ),
+        Err(_) => Colouring::Plain,
+    };
+    let views = ["three-quarter", "side"]
+        .iter()
+        .filter_map(|v| View::named(v))
+        .collect();
+    crate::render::render(
+        conformed,
+        &colouring,
+        &RenderOptions {
+            width: 640,
+            height: 400,
+            views,
+            ..Default::default()
+        },
+    )
+}

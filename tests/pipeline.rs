@@ -1,0 +1,458 @@
+//! The station pipeline: `process` on simulated capture sets gives what `reconstruct`
+//! then `conform` give; results appear whole or not at all, even when the process is
+//! killed; bad capture sets fail with the right stage, permanence and file; a station
+//! file's mistakes are all reported with their lines.
+
+use conformd::jobs;
+use conformd::station::pipeline::{Control, Pipeline, RESULT_FILES, Stage, remove_partial_results};
+use conformd::station::{StageError, StationConfig};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::OnceLock;
+
+const BIN: &str = env!("CARGO_BIN_EXE_conformd");
+
+fn rig_path() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("config/rig.example.toml")
+}
+
+/// One simulated two-pod capture of a posed pig with its calibrations, made once for the
+/// whole file (rendering takes seconds).
+fn simulated() -> &'static (tempfile::TempDir, PathBuf) {
+    static SIM: OnceLock<(tempfile::TempDir, PathBuf)> = OnceLock::new();
+    SIM.get_or_init(|| {
+        let dir = tempfile::tempdir().unwrap();
+        let sets = jobs::simulate(
+            &rig_path(),
+            "pig",
+            "swing=8,nod=-6",
+            1,
+            2.0,
+            &dir.path().join("sim"),
+        )
+        .unwrap();
+        let set = sets[0].clone();
+        (dir, set)
+    })
+}
+
+/// A station file in `dir` using the example rig and the simulated calibrations.
+fn station_file(dir: &Path, extra: &str) -> PathBuf {
+    let (sim, _) = simulated();
+    let p = dir.join("station.toml");
+    std::fs::write(
+        &p,
+        format!(
+            "[station]\nname = \"crate-1\"\ndata = \"data\"\n\
+             [template]\ngeneric = \"pig\"\nvertices = 3000\n\
+             [conform]\nmax_iterations = 12\n\
+             [rig]\nfile = \"{}\"\ncalibration = \"{}\"\n{extra}",
+            rig_path().display(),
+            sim.path().join("sim/calibration").display()
+        ),
+    )
+    .unwrap();
+    p
+}
+
+/// A copy of the simulated set under `dir`, for spoiling.
+fn copy_set(dir: &Path) -> PathBuf {
+    let (_, set) = simulated();
+    let to = dir.join(set.file_name().unwrap());
+    std::fs::create_dir_all(&to).unwrap();
+    for e in std::fs::read_dir(set).unwrap() {
+        let e = e.unwrap();
+        std::fs::copy(e.path(), to.join(e.file_name())).unwrap();
+    }
+    to
+}
+
+fn edit_manifest(set: &Path, f: impl FnOnce(&mut serde_json::Value)) {
+    let p = set.join("manifest.json");
+    let mut v: serde_json::Value = serde_json::from_slice(&std::fs::read(&p).unwrap()).unwrap();
+    f(&mut v);
+    std::fs::write(&p, serde_json::to_vec_pretty(&v).unwrap()).unwrap();
+}
+
+#[test]
+fn process_gives_what_reconstruct_then_conform_give() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let (sim, set) = simulated();
+    let cfg = station_file(d, "");
+    let results = d.join("results");
+    let (folder, report) = jobs::process(set, &cfg, &results, &mut |_| {}).unwrap();
+    let id = set.file_name().unwrap().to_string_lossy().to_string();
+    assert_eq!(folder, results.join(&id));
+    for f in RESULT_FILES {
+        assert!(folder.join(f).is_file(), "{f} missing");
+    }
+    let json: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(folder.join("report.json")).unwrap()).unwrap();
+    assert_eq!(json["capture"], id.as_str());
+    assert_eq!(json["station"], "crate-1");
+    eprintln!("{report}");
+
+    // the same by hand: reconstruct, then conform the file it wrote
+    let scan_path = d.join("scan.ply");
+    jobs::reconstruct(
+        set,
+        &rig_path(),
+        Some(&sim.path().join("sim/calibration")),
+        &scan_path,
+        None,
+        false,
+    )
+    .unwrap();
+    let files = jobs::ConformFiles {
+        template: jobs::template_from_config(&cfg).unwrap(),
+        scan: scan_path.clone(),
+        template_landmarks: None,
+        scan_landmarks: None,
+        out: d.join("conformed.ply"),
+        report: None,
+    };
+    let opts = jobs::load_conform_options(&cfg).unwrap();
+    jobs::conform_files(&files, &opts, &mut |_| {}).unwrap();
+    let read = |p: &Path| conformd::mesh::read_mesh(p).unwrap();
+    let (scan_a, scan_b) = (read(&folder.join("scan.ply")), read(&scan_path));
+    assert_eq!(scan_a.vertices, scan_b.vertices, "the scans differ");
+    let (a, b) = (
+        read(&folder.join("conformed.ply")),
+        read(&d.join("conformed.ply")),
+    );
+    assert_eq!(a.triangles, b.triangles);
+    let diag = b.diagonal();
+    let worst = a
+        .vertices
+        .iter()
+        .zip(&b.vertices)
+        .map(|(p, q)| (p - q).norm())
+        .fold(0.0, f64::max);
+    eprintln!(
+        "process vs reconstruct+conform: largest vertex difference {:.2e} of the diagonal",
+        worst / diag
+    );
+    assert!(worst <= 1e-9 * diag, "conformed meshes differ by {worst}");
+}
+
+/// `conformd process` killed at several points of its run, the write among them: the
+/// result folder is whole or absent, and the leftovers are hidden folders that
+/// `remove_partial_results` clears. A last run completes.
+#[test]
+fn a_killed_process_leaves_no_partial_result() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let (_, set) = simulated();
+    let cfg = station_file(d, "");
+    let results = d.join("results");
+    let id = set.file_name().unwrap().to_string_lossy().to_string();
+    let mut killed_while_writing = 0;
+    for delay_ms in [300u64, 1500, 3000, 4500, 6000, 8000] {
+        let mut child = Command::new(BIN)
+            .args(["process"])
+            .arg(set)
+            .arg("--config")
+            .arg(&cfg)
+            .arg("--out")
+            .arg(&results)
+            .env("CONFORMD_TEST_PAUSE_WRITE_MS", "400")
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .unwrap();
+        std::thread::sleep(std::time::Duration::from_millis(delay_ms));
+        let finished = child.try_wait().unwrap().is_some();
+        let _ = child.kill();
+        child.wait().unwrap();
+        let hidden: Vec<String> = std::fs::read_dir(&results)
+            .map(|rd| {
+                rd.map(|e| e.unwrap().file_name().to_string_lossy().to_string())
+                    .filter(|n| n.starts_with('.'))
+                    .collect()
+            })
+            .unwrap_or_default();
+        if hidden.iter().any(|n| n.contains(".partial-")) {
+            killed_while_writing += 1;
+        }
+        let folder = results.join(&id);
+        if folder.exists() {
+            for f in RESULT_FILES {
+                assert!(
+                    folder.join(f).is_file(),
+                    "killed after {delay_ms} ms: {f} missing from the result"
+                );
+            }
+            let _: serde_json::Value =
+                serde_json::from_slice(&std::fs::read(folder.join("report.json")).unwrap())
+                    .unwrap();
+        }
+        eprintln!(
+            "killed after {delay_ms} ms (finished before: {finished}): result {}, hidden {hidden:?}",
+            if folder.exists() { "whole" } else { "absent" }
+        );
+        remove_partial_results(&results).unwrap();
+        let left: Vec<_> = std::fs::read_dir(&results)
+            .map(|rd| {
+                rd.map(|e| e.unwrap().file_name())
+                    .filter(|n| n.to_string_lossy().starts_with('.'))
+                    .collect()
+            })
+            .unwrap_or_default();
+        assert!(left.is_empty(), "left after cleaning: {left:?}");
+    }
+    assert!(
+        killed_while_writing >= 1,
+        "no kill landed inside the write; widen the pause"
+    );
+    let out = Command::new(BIN)
+        .arg("process")
+        .arg(set)
+        .arg("--config")
+        .arg(&cfg)
+        .arg("--out")
+        .arg(&results)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        stdout.contains(&format!("capture {id}")) && stdout.contains("wrote"),
+        "{stdout}"
+    );
+    for f in RESULT_FILES {
+        assert!(results.join(&id).join(f).is_file());
+    }
+}
+
+fn failure(pipeline: &mut Pipeline, set: &Path) -> StageError {
+    match pipeline.process(set, &mut Control::default()) {
+        Err(e) => e,
+        Ok(_) => panic!("{} was processed", set.display()),
+    }
+}
+
+#[test]
+fn bad_capture_sets_fail_at_their_stage_naming_the_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let cfg = StationConfig::load(&station_file(d, "")).unwrap();
+    let mut pipeline = Pipeline::from_config(&cfg).unwrap();
+    let case = |name: &str| {
+        let p = d.join(name);
+        std::fs::create_dir_all(&p).unwrap();
+        copy_set(&p)
+    };
+    let check = |e: &StageError, stage: Stage, permanent: bool, words: &[&str]| {
+        let msg = e.to_string();
+        eprintln!("{msg}");
+        assert_eq!(e.stage, stage, "{msg}");
+        assert_eq!(e.permanent, permanent, "{msg}");
+        for w in words {
+            assert!(msg.contains(w), "'{w}' not in: {msg}");
+        }
+    };
+
+    // a truncated image
+    let s = case("truncated");
+    let img = s.join("pod1-left.png");
+    let bytes = std::fs::read(&img).unwrap();
+    std::fs::write(&img, &bytes[..bytes.len() / 3]).unwrap();
+    check(
+        &failure(&mut pipeline, &s),
+        Stage::Read,
+        true,
+        &["pod1-left.png", "not a readable image"],
+    );
+
+    // the manifest lacks a camera
+    let s = case("missing");
+    edit_manifest(&s, |v| {
+        v["cameras"]
+            .as_array_mut()
+            .unwrap()
+            .retain(|c| c["id"] != "pod2-right");
+    });
+    check(
+        &failure(&mut pipeline, &s),
+        Stage::Read,
+        true,
+        &["no right camera of pod pod2", "missing"],
+    );
+
+    // a manifest of another version
+    let s = case("version");
+    edit_manifest(&s, |v| v["version"] = 2.into());
+    check(
+        &failure(&mut pipeline, &s),
+        Stage::Read,
+        true,
+        &["manifest.json", "version 2"],
+    );
+
+    // no manifest: not a complete set
+    let s = case("nomanifest");
+    std::fs::remove_file(s.join("manifest.json")).unwrap();
+    check(
+        &failure(&mut pipeline, &s),
+        Stage::Read,
+        true,
+        &["no manifest.json"],
+    );
+
+    // a camera image of the wrong size (and a manifest that agrees with it)
+    let s = case("size");
+    image::GrayImage::new(640, 480)
+        .save(s.join("pod2-left.png"))
+        .unwrap();
+    edit_manifest(&s, |v| {
+        for c in v["cameras"].as_array_mut().unwrap() {
+            if c["id"] == "pod2-left" {
+                c["width"] = 640.into();
+                c["height"] = 480.into();
+            }
+        }
+    });
+    check(
+        &failure(&mut pipeline, &s),
+        Stage::Read,
+        true,
+        &["pod2-left.png", "640x480", "1280x960"],
+    );
+
+    // a file that escapes the set
+    let s = case("escape");
+    edit_manifest(&s, |v| v["cameras"][0]["file"] = "../../etc/passwd".into());
+    check(
+        &failure(&mut pipeline, &s),
+        Stage::Read,
+        true,
+        &["not a plain name"],
+    );
+
+    // images without texture: nothing to match, an empty scan
+    let s = case("blank");
+    for c in ["pod1-left", "pod1-right", "pod2-left", "pod2-right"] {
+        image::GrayImage::from_pixel(1280, 960, image::Luma([128]))
+            .save(s.join(format!("{c}.png")))
+            .unwrap();
+    }
+    check(
+        &failure(&mut pipeline, &s),
+        Stage::Reconstruct,
+        true,
+        &["pod1", "pod1-left.png"],
+    );
+
+    // a results folder that cannot be made: the machine's fault, retryable
+    let (_, good) = simulated();
+    let processed = pipeline.process(good, &mut Control::default()).unwrap();
+    let blocked = d.join("blocked");
+    std::fs::write(&blocked, "a file where the results folder should be").unwrap();
+    let e = processed.write(&blocked).unwrap_err();
+    check(&e, Stage::Write, false, &["blocked"]);
+
+    // cancelled: not the capture's fault
+    let stop = std::sync::atomic::AtomicBool::new(true);
+    let e = match pipeline.process(
+        good,
+        &mut Control {
+            cancel: Some(&stop),
+            progress: None,
+        },
+    ) {
+        Err(e) => e,
+        Ok(_) => panic!("a cancelled run finished"),
+    };
+    check(&e, Stage::Reconstruct, false, &["cancelled"]);
+}
+
+#[test]
+fn every_mistake_in_a_station_file_is_reported_with_its_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("station.toml");
+    std::fs::write(
+        &p,
+        "[station]\nname = \"crate-1\"\n\n[conform]\nmax_iterations = 20\nmax_iteration = 5\n\n[daemon]\nworkers = \"two\"\n\n[camera]\nid = \"x\"\n",
+    )
+    .unwrap();
+    let e = StationConfig::load(&p).unwrap_err();
+    let text = e.to_string();
+    eprintln!("{text}");
+    let lines: Vec<Option<usize>> = e.problems.iter().map(|p| p.line).collect();
+    assert_eq!(e.problems.len(), 3, "{text}");
+    assert!(
+        lines.contains(&Some(6)) && lines.contains(&Some(9)) && lines.contains(&Some(11)),
+        "{lines:?}"
+    );
+    assert!(
+        text.contains("max_iteration") && text.contains("workers") && text.contains("'camera'"),
+        "{text}"
+    );
+    // through the binary: non-zero exit, every line in the message
+    let out = Command::new(BIN).arg("check").arg(&p).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    for l in ["line 6", "line 9", "line 11"] {
+        assert!(err.contains(l), "{l} not in {err}");
+    }
+    // a syntax error names its line too
+    std::fs::write(&p, "[station]\nname = \"a\"\n[conform\n").unwrap();
+    let e = StationConfig::load(&p).unwrap_err();
+    assert_eq!(e.problems[0].line, Some(3), "{e}");
+    // a camera id that would become a path outside captures/
+    std::fs::write(&p, "[capture]\n[[cameras]]\nid = \"../../x\"\npod = \"p\"\nside = \"left\"\nsynthetic = true\n").unwrap();
+    let e = StationConfig::load(&p).unwrap_err().to_string();
+    assert!(e.contains("not a plain name"), "{e}");
+}
+
+#[test]
+fn the_example_station_file_is_complete_and_valid() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/station.example.toml");
+    let text = std::fs::read_to_string(&path).unwrap();
+    for section in [
+        "[station]",
+        "[template]",
+        "[conform]",
+        "[rig]",
+        "[capture]",
+        "[[cameras]]",
+        "[trigger]",
+        "[model]",
+        "[daemon]",
+    ] {
+        assert!(
+            text.lines().any(|l| l.trim() == section),
+            "{section} missing from the example"
+        );
+    }
+    let cfg = StationConfig::load(&path).expect("the example loads");
+    assert_eq!(cfg.station.name, "crate-1");
+    assert_eq!(cfg.cameras.len(), 4);
+    assert!(cfg.trigger.is_some() && cfg.capture.is_some() && cfg.model.file.is_some());
+    let rig = cfg.rig.as_ref().unwrap();
+    assert!(
+        rig.file.is_absolute() && rig.file.exists(),
+        "{}",
+        rig.file.display()
+    );
+    // every key the reader knows stands in the example with its default (or a comment)
+    let rig_cfg = cfg.rig_config().unwrap();
+    assert_eq!(rig_cfg.root, Path::new("/var/lib/conformd/captures"));
+    assert_eq!(rig_cfg.capture.options.station, "crate-1");
+    let out = Command::new(BIN).arg("check").arg(&path).output().unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        stdout.contains("valid station file") && stdout.contains("[daemon]"),
+        "{stdout}"
+    );
+}
