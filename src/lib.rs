@@ -4,6 +4,7 @@
 //! `ARCHITECTURE.md` has the data path and what each module owns.
 
 pub mod conform;
+pub mod daemon;
 pub mod jobs;
 pub mod mesh;
 pub mod model;

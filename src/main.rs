@@ -63,12 +63,29 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
             capture,
             config,
             out,
+            json,
+            parent,
         } => {
-            let (pb, mut tick) = progress::pipeline(30);
-            let r = jobs::process(&capture, &config, &out, &mut tick);
-            pb.finish_and_clear();
-            let (dir, report) = r?;
-            println!("{report}\nwrote {}", dir.display());
+            if let Some(pid) = parent {
+                cli::exit_with_parent(pid);
+            }
+            cli::crash_hook(&capture);
+            if json {
+                let r = jobs::process(&capture, &config, &out, &mut |_| {});
+                let line = serde_json::to_string(&jobs::ProcessOutcome::of(&r));
+                println!("{}", line.expect("an outcome serialises"));
+                r?;
+            } else {
+                let (pb, mut tick) = progress::pipeline(30);
+                let r = jobs::process(&capture, &config, &out, &mut tick);
+                pb.finish_and_clear();
+                let (dir, report) = r?;
+                println!("{report}\nwrote {}", dir.display());
+            }
+        }
+        Cmd::Daemon { config } => {
+            let cfg = jobs::check(&config)?;
+            conformd::daemon::run(cfg).map_err(|e| jobs::JobError::Usage(e.to_string()))?;
         }
         Cmd::Demo { out } => {
             let mut bars: Vec<(Method, ProgressBar)> = Vec::new();

@@ -68,6 +68,19 @@ pub enum Cmd {
         /// results folder; the result goes to OUT/<capture id>/
         #[arg(long)]
         out: PathBuf,
+        /// print one JSON line (what the daemon reads) instead of the summary
+        #[arg(long)]
+        json: bool,
+        /// exit when this process is no longer the parent (the daemon's workers)
+        #[arg(long, hide = true)]
+        parent: Option<u32>,
+    },
+    /// Run the station: capture on trigger, watch captures/ and incoming/, process every
+    /// set once (journal, worker processes), serve the HTTP API and status page.
+    Daemon {
+        /// the station file
+        #[arg(long)]
+        config: PathBuf,
     },
     /// Run the paper's sphere-to-box case with missing data, both methods.
     Demo {

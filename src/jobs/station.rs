@@ -34,3 +34,60 @@ pub fn process(
     let dir = processed.write(out)?;
     Ok((dir, processed.report))
 }
+
+/// What `conformd process --json` prints as its one line on stdout: how a worker process
+/// tells the daemon what happened to its capture.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+pub struct ProcessOutcome {
+    pub ok: bool,
+    pub capture: Option<String>,
+    pub result: Option<PathBuf>,
+    /// seconds per stage
+    pub seconds: Option<serde_json::Value>,
+    /// the mean distance to the scan, relative to the diagonal, and the filled share
+    pub mean_distance_relative: Option<f64>,
+    pub filled: Option<usize>,
+    /// the failed stage (`read`, `reconstruct`, `conform`, `score`, `write`, or `setup`
+    /// when the station file or its template could not be loaded)
+    pub stage: Option<String>,
+    /// the capture is at fault: do not retry
+    pub permanent: bool,
+    pub error: Option<String>,
+}
+
+impl ProcessOutcome {
+    pub fn of(r: &Result<(PathBuf, ProcessReport), JobError>) -> ProcessOutcome {
+        match r {
+            Ok((dir, report)) => ProcessOutcome {
+                ok: true,
+                capture: Some(report.capture.clone()),
+                result: Some(dir.clone()),
+                seconds: serde_json::to_value(&report.seconds).ok(),
+                mean_distance_relative: Some(report.conformation.mean_distance_relative),
+                filled: Some(report.conformation.filled),
+                stage: None,
+                permanent: false,
+                error: None,
+            },
+            Err(e) => {
+                let (capture, stage, permanent) = match e {
+                    JobError::Stage(s) => {
+                        (Some(s.capture.clone()), s.stage.to_string(), s.permanent)
+                    }
+                    _ => (None, "setup".to_string(), false),
+                };
+                ProcessOutcome {
+                    ok: false,
+                    capture,
+                    result: None,
+                    seconds: None,
+                    mean_distance_relative: None,
+                    filled: None,
+                    stage: Some(stage),
+                    permanent,
+                    error: Some(e.to_string()),
+                }
+            }
+        }
+    }
+}

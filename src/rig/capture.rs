@@ -8,7 +8,7 @@
 use super::camera::{Camera, CameraError, CameraSettings, Frame};
 use super::capture_set::write_capture_set;
 pub use super::capture_set::{CameraRecord, Manifest, TriggerRecord, utc_stamp};
-use super::trigger::{TriggerBox, TriggerError, TriggerLink};
+use super::trigger::{BoxEvent, TriggerBox, TriggerError, TriggerLink};
 use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant, SystemTime};
@@ -19,6 +19,14 @@ pub trait Trigger {
     fn arm(&mut self, seq: u32) -> Result<(), TriggerError>;
     /// Fires; returns the box's timestamp of the pulse when there is a box.
     fn fire(&mut self, seq: u32, exposure_us: u32) -> Result<Option<u64>, TriggerError>;
+    /// Operator button presses and tag reads the box reported, waiting up to `wait`.
+    fn poll_events(&mut self, _wait: Duration) -> Result<Vec<BoxEvent>, TriggerError> {
+        Ok(Vec::new())
+    }
+    /// Whether the trigger's link is up (a software trigger always is).
+    fn connected(&self) -> bool {
+        true
+    }
 }
 
 /// No box: cameras free-run and the next frame of each is taken.
@@ -51,6 +59,12 @@ impl<P: Read + Write> Trigger for TriggerBox<P> {
 impl Trigger for TriggerLink {
     fn kind(&self) -> &'static str {
         "serial"
+    }
+    fn poll_events(&mut self, wait: Duration) -> Result<Vec<BoxEvent>, TriggerError> {
+        self.with(|b| b.poll_events(wait))
+    }
+    fn connected(&self) -> bool {
+        self.is_connected()
     }
     fn arm(&mut self, seq: u32) -> Result<(), TriggerError> {
         self.with(|b| b.arm(seq))

@@ -81,6 +81,10 @@ pub struct DaemonSection {
     pub job_timeout_s: f64,
     /// attempts of a job whose failure was the machine's, not the capture's
     pub max_attempts: u32,
+    /// watch the capture folders with inotify (off: rescans alone, e.g. on NFS)
+    pub watch: bool,
+    /// seconds a stop (SIGTERM) waits for running jobs before queueing them again
+    pub drain_s: f64,
 }
 
 impl Default for DaemonSection {
@@ -92,6 +96,8 @@ impl Default for DaemonSection {
             token: None,
             job_timeout_s: 300.0,
             max_attempts: 3,
+            watch: true,
+            drain_s: 30.0,
         }
     }
 }
@@ -325,6 +331,12 @@ impl StationConfig {
                 ),
             );
         }
+        if !(0.0..=3600.0).contains(&daemon.drain_s) {
+            add(
+                at("daemon"),
+                format!("[daemon]: drain_s = {} is not 0 to 3600", daemon.drain_s),
+            );
+        }
         if !(1..=100).contains(&daemon.max_attempts) || daemon.workers > 256 {
             add(
                 at("daemon"),
@@ -357,7 +369,8 @@ impl StationConfig {
             });
         }
         let mut cfg = StationConfig {
-            file: path.to_path_buf(),
+            // absolute, so paths resolved against its folder are absolute too
+            file: std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf()),
             station,
             template,
             conform,

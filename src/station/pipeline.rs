@@ -399,6 +399,17 @@ impl Pipeline {
         let set = CaptureSetDir::open(dir)
             .map_err(|e| StageError::new(Stage::Read, &fallback_id, e.into()))?;
         let id = set.id().to_string();
+        if id != fallback_id {
+            // results, journal and API are keyed by the folder's name
+            return Err(StageError::new(
+                Stage::Read,
+                &fallback_id,
+                StageCause::CaptureSet(CaptureSetError::Manifest {
+                    path: dir.join("manifest.json").display().to_string(),
+                    msg: format!("its id '{id}' is not its folder's name '{fallback_id}'"),
+                }),
+            ));
+        }
         let images = read_pod_images(&set, &self.reconstruction.pods)
             .map_err(|e| StageError::new(Stage::Read, &id, e.into()))?;
         seconds.read = t.elapsed().as_secs_f64();

@@ -6,6 +6,7 @@
 pub mod cases;
 pub mod rig;
 pub mod scanner;
+pub mod trigger_box;
 
 use crate::mesh::{Mesh, V3};
 use std::collections::HashMap;

@@ -1,0 +1,535 @@
+//! The daemon's HTTP side (axum): the JSON API, Prometheus metrics, and the status page a
+//! station operator leaves open. Mutating calls need the configured bearer token; ids are
+//! plain names; bodies are small.
+
+use super::journal::{Job, State};
+use super::{BUCKETS, CaptureRequest, Shared};
+use axum::Router;
+use axum::extract::{DefaultBodyLimit, Path, Query, Request, State as Ctx};
+use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
+use axum::middleware::{self, Next};
+use axum::response::{Html, IntoResponse, Response};
+use axum::routing::{get, post};
+use std::fmt::Write as _;
+use std::sync::Arc;
+
+/// Largest request body (trigger requests carry a subject id at most).
+pub const MAX_BODY: usize = 4096;
+
+pub fn router(shared: Arc<Shared>) -> Router {
+    let mutating = Router::new()
+        .route("/api/trigger", post(trigger))
+        .route("/api/captures/{id}/reprocess", post(reprocess))
+        .route("/api/model/rebuild", post(rebuild))
+        .route_layer(middleware::from_fn_with_state(
+            shared.clone(),
+            require_token,
+        ));
+    Router::new()
+        .route("/", get(page))
+        .route("/captures/{id}", get(capture_page))
+        .route("/healthz", get(|| async { "ok\n" }))
+        .route("/metrics", get(metrics))
+        .route("/api/status", get(status))
+        .route("/api/captures", get(list))
+        .route("/api/captures/{id}", get(capture))
+        .route("/api/captures/{id}/{file}", get(capture_file))
+        .merge(mutating)
+        .layer(DefaultBodyLimit::max(MAX_BODY))
+        .with_state(shared)
+}
+
+struct ApiError(StatusCode, String);
+
+impl IntoResponse for ApiError {
+    fn into_response(self) -> Response {
+        (self.0, axum::Json(serde_json::json!({ "error": self.1 }))).into_response()
+    }
+}
+
+type Api<T> = Result<T, ApiError>;
+
+fn internal(e: impl std::fmt::Display) -> ApiError {
+    ApiError(StatusCode::INTERNAL_SERVER_ERROR, e.to_string())
+}
+
+fn checked_id(id: &str) -> Api<()> {
+    crate::paths::check_plain_name("capture id", id)
+        .map_err(|e| ApiError(StatusCode::BAD_REQUEST, e))
+}
+
+fn job_or_404(shared: &Shared, id: &str) -> Api<Job> {
+    checked_id(id)?;
+    shared
+        .journal()
+        .get(id)
+        .map_err(internal)?
+        .ok_or_else(|| ApiError(StatusCode::NOT_FOUND, format!("no capture '{id}'")))
+}
+
+async fn require_token(
+    Ctx(shared): Ctx<Arc<Shared>>,
+    headers: HeaderMap,
+    req: Request,
+    next: Next,
+) -> Response {
+    // only POSTs change anything; other methods go on to their 405
+    let mutating = req.method() == axum::http::Method::POST;
+    if let Some(token) = shared.cfg.daemon.token.as_ref().filter(|_| mutating) {
+        let given = headers
+            .get(header::AUTHORIZATION)
+            .and_then(|v| v.to_str().ok())
+            .and_then(|v| v.strip_prefix("Bearer "));
+        let ok = given.is_some_and(|g| {
+            g.len() == token.len()
+                && g.bytes()
+                    .zip(token.bytes())
+                    .fold(0u8, |acc, (a, b)| acc | (a ^ b))
+                    == 0
+        });
+        if !ok {
+            let mut r = ApiError(
+                StatusCode::UNAUTHORIZED,
+                "this call needs 'Authorization: Bearer <token>' with the station's token".into(),
+            )
+            .into_response();
+            r.headers_mut()
+                .insert(header::WWW_AUTHENTICATE, HeaderValue::from_static("Bearer"));
+            return r;
+        }
+    }
+    next.run(req).await
+}
+
+#[derive(serde::Serialize)]
+struct Status {
+    station: String,
+    uptime_s: f64,
+    queue: super::journal::Counts,
+    running: Vec<String>,
+    workers: usize,
+    stopping: bool,
+    rig: super::RigStatus,
+    free_disk_bytes: Option<u64>,
+    model: Option<String>,
+    model_exists: bool,
+    model_rebuilding: bool,
+    model_error: Option<String>,
+}
+
+fn status_of(shared: &Shared) -> Api<Status> {
+    let queue = shared.journal().counts().map_err(internal)?;
+    let running = shared
+        .running
+        .lock()
+        .map(|r| r.keys().cloned().collect())
+        .unwrap_or_default();
+    let model = shared.cfg.model.file.clone();
+    Ok(Status {
+        station: shared.cfg.station.name.clone(),
+        uptime_s: shared.uptime(),
+        queue,
+        running,
+        workers: shared.workers,
+        stopping: shared.stopping.load(std::sync::atomic::Ordering::SeqCst),
+        rig: shared.rig.lock().map(|r| r.clone()).unwrap_or_default(),
+        free_disk_bytes: fs4::available_space(&shared.cfg.station.data).ok(),
+        model_exists: model.as_ref().is_some_and(|m| m.exists()),
+        model: model.map(|m| m.display().to_string()),
+        model_rebuilding: shared.model_busy.load(std::sync::atomic::Ordering::SeqCst),
+        model_error: shared.model_error.lock().ok().and_then(|e| e.clone()),
+    })
+}
+
+async fn status(Ctx(shared): Ctx<Arc<Shared>>) -> Api<axum::Json<Status>> {
+    Ok(axum::Json(status_of(&shared)?))
+}
+
+#[derive(serde::Deserialize)]
+struct ListQuery {
+    state: Option<String>,
+    limit: Option<usize>,
+}
+
+async fn list(
+    Ctx(shared): Ctx<Arc<Shared>>,
+    Query(q): Query<ListQuery>,
+) -> Api<axum::Json<Vec<Job>>> {
+    let state = match q.state.as_deref() {
+        None | Some("") => None,
+        Some(s) => Some(State::parse(s).ok_or_else(|| {
+            ApiError(
+                StatusCode::BAD_REQUEST,
+                format!("state '{s}': expected queued, running, done or failed"),
+            )
+        })?),
+    };
+    let limit = q.limit.unwrap_or(100).min(10_000);
+    Ok(axum::Json(
+        shared.journal().list(state, limit).map_err(internal)?,
+    ))
+}
+
+#[derive(serde::Serialize)]
+struct CaptureDetail {
+    #[serde(flatten)]
+    job: Job,
+    manifest: Option<serde_json::Value>,
+    report: Option<serde_json::Value>,
+}
+
+fn detail(shared: &Shared, id: &str) -> Api<CaptureDetail> {
+    let job = job_or_404(shared, id)?;
+    let read_json = |p: std::path::PathBuf| -> Option<serde_json::Value> {
+        serde_json::from_slice(&std::fs::read(p).ok()?).ok()
+    };
+    let manifest = read_json(job.dir.join("manifest.json"));
+    let report = job
+        .result
+        .as_ref()
+        .and_then(|r| read_json(r.join("report.json")));
+    Ok(CaptureDetail {
+        job,
+        manifest,
+        report,
+    })
+}
+
+async fn capture(
+    Ctx(shared): Ctx<Arc<Shared>>,
+    Path(id): Path<String>,
+) -> Api<axum::Json<CaptureDetail>> {
+    Ok(axum::Json(detail(&shared, &id)?))
+}
+
+async fn capture_file(
+    Ctx(shared): Ctx<Arc<Shared>>,
+    Path((id, file)): Path<(String, String)>,
+) -> Api<Response> {
+    let job = job_or_404(&shared, &id)?;
+    let kind = match file.as_str() {
+        "preview.png" => "image/png",
+        "report.json" => "application/json",
+        "scan.ply" | "conformed.ply" => "application/octet-stream",
+        _ => {
+            return Err(ApiError(
+                StatusCode::NOT_FOUND,
+                format!(
+                    "'{file}': a result has preview.png, report.json, scan.ply and conformed.ply"
+                ),
+            ));
+        }
+    };
+    let dir = job.result.ok_or_else(|| {
+        ApiError(
+            StatusCode::NOT_FOUND,
+            format!("capture '{id}' has no result yet"),
+        )
+    })?;
+    let bytes = tokio::fs::read(dir.join(&file))
+        .await
+        .map_err(|e| ApiError(StatusCode::NOT_FOUND, format!("{file}: {e}")))?;
+    Ok(([(header::CONTENT_TYPE, kind)], bytes).into_response())
+}
+
+#[derive(serde::Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+struct TriggerBody {
+    subject: Option<String>,
+}
+
+async fn trigger(Ctx(shared): Ctx<Arc<Shared>>, body: axum::body::Bytes) -> Api<Response> {
+    let req: TriggerBody = if body.is_empty() {
+        TriggerBody::default()
+    } else {
+        serde_json::from_slice(&body).map_err(|e| {
+            ApiError(
+                StatusCode::BAD_REQUEST,
+                format!("expected {{\"subject\": \"ID\"}} or no body: {e}"),
+            )
+        })?
+    };
+    if let Some(s) = &req.subject {
+        crate::paths::check_plain_name("subject", s)
+            .map_err(|e| ApiError(StatusCode::BAD_REQUEST, e))?;
+    }
+    let tx = shared.capture.as_ref().ok_or_else(|| {
+        ApiError(
+            StatusCode::CONFLICT,
+            "this station has no [capture] section: it only processes sets dropped into incoming/"
+                .into(),
+        )
+    })?;
+    let (reply, answer) = tokio::sync::oneshot::channel();
+    tx.send(CaptureRequest {
+        subject: req.subject,
+        reply: Some(reply),
+    })
+    .map_err(|_| ApiError(StatusCode::SERVICE_UNAVAILABLE, "the rig is stopped".into()))?;
+    match tokio::time::timeout(std::time::Duration::from_secs(60), answer).await {
+        Ok(Ok(Ok(id))) => Ok((
+            StatusCode::CREATED,
+            axum::Json(serde_json::json!({ "capture": id })),
+        )
+            .into_response()),
+        Ok(Ok(Err(e))) => Err(ApiError(StatusCode::SERVICE_UNAVAILABLE, e)),
+        _ => Err(ApiError(
+            StatusCode::SERVICE_UNAVAILABLE,
+            "the rig did not answer".into(),
+        )),
+    }
+}
+
+async fn reprocess(Ctx(shared): Ctx<Arc<Shared>>, Path(id): Path<String>) -> Api<Response> {
+    job_or_404(&shared, &id)?;
+    if !shared.journal().reprocess(&id).map_err(internal)? {
+        return Err(ApiError(
+            StatusCode::CONFLICT,
+            format!("capture '{id}' is being processed now"),
+        ));
+    }
+    shared.wake.notify_one();
+    Ok((
+        StatusCode::ACCEPTED,
+        axum::Json(serde_json::json!({ "capture": id, "state": "queued" })),
+    )
+        .into_response())
+}
+
+async fn rebuild(Ctx(shared): Ctx<Arc<Shared>>) -> Api<Response> {
+    if shared.cfg.model.file.is_none() {
+        return Err(ApiError(
+            StatusCode::CONFLICT,
+            "the station file has no [model] file".into(),
+        ));
+    }
+    let started = super::request_model_rebuild(&shared);
+    Ok((
+        StatusCode::ACCEPTED,
+        axum::Json(serde_json::json!({ "rebuilding": true, "already_running": !started })),
+    )
+        .into_response())
+}
+
+async fn metrics(Ctx(shared): Ctx<Arc<Shared>>) -> Api<Response> {
+    let c = shared.journal().counts().map_err(internal)?;
+    let failures = shared.journal().failures_by_stage().map_err(internal)?;
+    let mut s = String::new();
+    s.push_str("# HELP conformd_captures Captures in the journal by job state.\n# TYPE conformd_captures gauge\n");
+    for (state, n) in [
+        ("queued", c.queued),
+        ("running", c.running),
+        ("done", c.done),
+        ("failed", c.failed),
+    ] {
+        let _ = writeln!(s, "conformd_captures{{state=\"{state}\"}} {n}");
+    }
+    let _ = writeln!(
+        s,
+        "# HELP conformd_queue_depth Captures waiting to be processed.\n# TYPE conformd_queue_depth gauge\nconformd_queue_depth {}",
+        c.queued
+    );
+    s.push_str("# HELP conformd_failures Failed captures by the stage that failed.\n# TYPE conformd_failures gauge\n");
+    for (stage, n) in failures {
+        let _ = writeln!(s, "conformd_failures{{stage=\"{stage}\"}} {n}");
+    }
+    let m = shared.metrics.lock().map(|m| m.clone()).unwrap_or_default();
+    let _ = writeln!(
+        s,
+        "# HELP conformd_jobs_started_total Jobs started since the daemon started.\n# TYPE conformd_jobs_started_total counter\nconformd_jobs_started_total {}",
+        m.jobs_started
+    );
+    let _ = writeln!(
+        s,
+        "# HELP conformd_worker_crashes_total Worker processes that died of a signal.\n# TYPE conformd_worker_crashes_total counter\nconformd_worker_crashes_total {}",
+        m.worker_crashes
+    );
+    let _ = writeln!(
+        s,
+        "# HELP conformd_job_timeouts_total Jobs stopped at their time limit.\n# TYPE conformd_job_timeouts_total counter\nconformd_job_timeouts_total {}",
+        m.timeouts
+    );
+    s.push_str("# HELP conformd_stage_seconds Seconds per pipeline stage of finished jobs.\n# TYPE conformd_stage_seconds histogram\n");
+    for (stage, (buckets, sum, count)) in &m.stages {
+        for (b, n) in BUCKETS.iter().zip(buckets) {
+            let _ = writeln!(
+                s,
+                "conformd_stage_seconds_bucket{{stage=\"{stage}\",le=\"{b}\"}} {n}"
+            );
+        }
+        let _ = writeln!(
+            s,
+            "conformd_stage_seconds_bucket{{stage=\"{stage}\",le=\"+Inf\"}} {count}"
+        );
+        let _ = writeln!(s, "conformd_stage_seconds_sum{{stage=\"{stage}\"}} {sum}");
+        let _ = writeln!(
+            s,
+            "conformd_stage_seconds_count{{stage=\"{stage}\"}} {count}"
+        );
+    }
+    Ok(([(header::CONTENT_TYPE, "text/plain; version=0.0.4")], s).into_response())
+}
+
+/// Text for HTML.
+fn esc(s: &str) -> String {
+    s.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
+        .replace('"', "&quot;")
+}
+
+fn when(t: Option<f64>) -> String {
+    t.map(|t| {
+        crate::rig::capture::utc_stamp(
+            std::time::UNIX_EPOCH + std::time::Duration::from_secs_f64(t.max(0.0)),
+        )
+    })
+    .unwrap_or_default()
+}
+
+const STYLE: &str = "body{font-family:sans-serif;margin:1.5em;color:#222}table{border-collapse:collapse}td,th{padding:4px 10px;border-bottom:1px solid #ddd;text-align:left;vertical-align:top}.done{color:#176b2c}.failed{color:#b00020}.running{color:#1f4fb4}.queued{color:#666}img{border:1px solid #ccc}";
+
+async fn page(Ctx(shared): Ctx<Arc<Shared>>) -> Api<Html<String>> {
+    let st = status_of(&shared)?;
+    let jobs = shared.journal().list(None, 30).map_err(internal)?;
+    let failed = shared
+        .journal()
+        .list(Some(State::Failed), 10)
+        .map_err(internal)?;
+    let mut h = String::new();
+    let _ = write!(
+        h,
+        "<!doctype html><html><head><meta charset=\"utf-8\"><meta http-equiv=\"refresh\" content=\"5\"><title>conformd: {name}</title><style>{STYLE}</style></head><body><h1>conformd: {name}</h1>",
+        name = esc(&st.station)
+    );
+    let q = &st.queue;
+    let _ = write!(
+        h,
+        "<p id=\"queue\">{} queued, {} running (of {} workers), {} done, {} failed. Free disk: {}. Trigger: {}. Model: {}.</p>",
+        q.queued,
+        q.running,
+        st.workers,
+        q.done,
+        q.failed,
+        st.free_disk_bytes
+            .map(|b| format!("{:.1} GB", b as f64 / 1e9))
+            .unwrap_or_else(|| "unknown".into()),
+        match (&st.rig.trigger, st.rig.trigger_connected) {
+            (None, _) => "software (no box)".to_string(),
+            (Some(d), true) => format!("{} connected", esc(d)),
+            (Some(d), false) => format!("<b>{} not connected</b>", esc(d)),
+        },
+        if st.model_exists {
+            "yes"
+        } else {
+            "not built yet"
+        }
+    );
+    if let Some(latest) = jobs.iter().find(|j| j.state == State::Done) {
+        let _ = write!(
+            h,
+            "<h2>Latest result: <a href=\"/captures/{id}\">{id}</a></h2><img id=\"latest-preview\" src=\"/api/captures/{id}/preview.png\" alt=\"preview of {id}\" width=\"640\">",
+            id = esc(&latest.id)
+        );
+    }
+    h.push_str("<h2>Captures</h2><table id=\"captures\"><tr><th>capture</th><th>subject</th><th>state</th><th>attempts</th><th>seconds</th><th>preview</th><th>error</th></tr>");
+    for j in &jobs {
+        let total = j
+            .seconds
+            .as_ref()
+            .and_then(|s| s.get("total"))
+            .and_then(|v| v.as_f64())
+            .map(|t| format!("{t:.2}"))
+            .unwrap_or_default();
+        let thumb = if j.state == State::Done {
+            format!(
+                "<img src=\"/api/captures/{}/preview.png\" width=\"160\" alt=\"\">",
+                esc(&j.id)
+            )
+        } else {
+            String::new()
+        };
+        let _ = write!(
+            h,
+            "<tr><td><a href=\"/captures/{id}\">{id}</a></td><td>{subj}</td><td class=\"{st}\">{st}</td><td>{att}</td><td>{total}</td><td>{thumb}</td><td>{err}</td></tr>",
+            id = esc(&j.id),
+            subj = esc(j.subject.as_deref().unwrap_or("")),
+            st = j.state.as_str(),
+            att = j.attempts,
+            err = esc(j.error.as_deref().unwrap_or(""))
+        );
+    }
+    h.push_str("</table>");
+    if !failed.is_empty() {
+        h.push_str("<h2>Failures</h2><ul id=\"failures\">");
+        for j in &failed {
+            let _ = write!(
+                h,
+                "<li><a href=\"/captures/{id}\">{id}</a> ({stage}): {err}</li>",
+                id = esc(&j.id),
+                stage = esc(j.stage.as_deref().unwrap_or("")),
+                err = esc(j.error.as_deref().unwrap_or(""))
+            );
+        }
+        h.push_str("</ul>");
+    }
+    h.push_str("<p><a href=\"/api/status\">status (JSON)</a> · <a href=\"/metrics\">metrics</a></p></body></html>");
+    Ok(Html(h))
+}
+
+async fn capture_page(Ctx(shared): Ctx<Arc<Shared>>, Path(id): Path<String>) -> Api<Html<String>> {
+    let d = detail(&shared, &id)?;
+    let j = &d.job;
+    let mut h = String::new();
+    let _ = write!(
+        h,
+        "<!doctype html><html><head><meta charset=\"utf-8\"><title>{id}</title><style>{STYLE}</style></head><body><p><a href=\"/\">station</a></p><h1>{id}</h1><table>",
+        id = esc(&j.id)
+    );
+    let mut row = |k: &str, v: String| {
+        let _ = write!(h, "<tr><th>{k}</th><td>{v}</td></tr>");
+    };
+    row(
+        "state",
+        format!("<span class=\"{0}\">{0}</span>", j.state.as_str()),
+    );
+    row("subject", esc(j.subject.as_deref().unwrap_or("")));
+    row("attempts", j.attempts.to_string());
+    row("queued", when(Some(j.queued_at)));
+    row("finished", when(j.finished_at));
+    if let Some(e) = &j.error {
+        row(
+            "error",
+            format!("{} ({})", esc(e), esc(j.stage.as_deref().unwrap_or(""))),
+        );
+    }
+    if let Some(r) = &d.report {
+        let c = &r["conformation"];
+        row(
+            "mean distance to the scan",
+            format!(
+                "{:.3}% of the diagonal",
+                c["mean_distance_relative"].as_f64().unwrap_or(f64::NAN) * 100.0
+            ),
+        );
+        row(
+            "matched / filled vertices",
+            format!("{} / {}", c["matched"], c["filled"]),
+        );
+        row("folded triangles", c["folded_triangles"].to_string());
+        row("seconds", esc(&r["seconds"].to_string()));
+        if let Some(s) = r.get("scores").filter(|s| !s.is_null()) {
+            row("model scores (sd)", esc(&s["scores_sd"].to_string()));
+        }
+    }
+    h.push_str("</table>");
+    if j.state == State::Done {
+        let _ = write!(
+            h,
+            "<p><img src=\"/api/captures/{id}/preview.png\" width=\"640\" alt=\"preview\"></p><p><a href=\"/api/captures/{id}/conformed.ply\">conformed.ply</a> · <a href=\"/api/captures/{id}/scan.ply\">scan.ply</a> · <a href=\"/api/captures/{id}/report.json\">report.json</a></p>",
+            id = esc(&j.id)
+        );
+    }
+    h.push_str("</body></html>");
+    Ok(Html(h))
+}

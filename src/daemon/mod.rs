@@ -1,0 +1,739 @@
+//! The station service (`conformd daemon`): captures on trigger, watches `captures/` and
+//! `incoming/`, keeps the journal, runs every capture once through the pipeline in a
+//! worker process, rebuilds the shape model, serves the HTTP API and status page, and
+//! talks to systemd. The only async module; everything it runs per capture is the
+//! synchronous pipeline, in a child process (`conformd process --json`) so that a crash
+//! inside a job (an OpenCV abort, a segfault, running out of memory) fails that job only.
+
+pub mod http;
+pub mod journal;
+mod rig;
+
+use crate::jobs::ProcessOutcome;
+use crate::station::StationConfig;
+use journal::{Journal, JournalError, State};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+use tracing::{error, info, warn};
+
+/// Why the daemon could not start or stopped on its own.
+#[derive(Debug, thiserror::Error)]
+pub enum DaemonError {
+    #[error(transparent)]
+    Journal(#[from] JournalError),
+    #[error("{path}: {source}")]
+    Io {
+        path: String,
+        source: std::io::Error,
+    },
+    #[error("HTTP server on {addr}: {source}")]
+    Listen {
+        addr: String,
+        source: std::io::Error,
+    },
+    #[error("watching {path}: {msg}")]
+    Watch { path: String, msg: String },
+    #[error("{0}")]
+    Config(String),
+}
+
+fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> DaemonError + '_ {
+    move |source| DaemonError::Io {
+        path: path.display().to_string(),
+        source,
+    }
+}
+
+/// A capture asked for by the trigger box, the API or a test.
+pub struct CaptureRequest {
+    pub subject: Option<String>,
+    pub reply: Option<tokio::sync::oneshot::Sender<Result<String, String>>>,
+}
+
+/// What the status page and `/api/status` say of the rig.
+#[derive(Debug, Clone, Default, serde::Serialize)]
+pub struct RigStatus {
+    pub cameras: Vec<String>,
+    pub trigger: Option<String>,
+    pub trigger_connected: bool,
+    pub last_capture: Option<String>,
+    pub last_capture_error: Option<String>,
+    pub captures: u64,
+}
+
+/// Seconds per stage of finished jobs, as Prometheus histograms.
+#[derive(Debug, Clone, Default)]
+pub struct Metrics {
+    /// stage -> (bucket counts, sum, count)
+    pub stages: BTreeMap<String, (Vec<u64>, f64, u64)>,
+    pub jobs_started: u64,
+    pub worker_crashes: u64,
+    pub timeouts: u64,
+}
+
+/// Upper bounds of the stage-duration histogram buckets, seconds.
+pub const BUCKETS: [f64; 10] = [0.1, 0.25, 0.5, 1.0, 2.0, 5.0, 10.0, 30.0, 60.0, 300.0];
+
+impl Metrics {
+    fn observe(&mut self, stage: &str, seconds: f64) {
+        let e = self
+            .stages
+            .entry(stage.to_string())
+            .or_insert_with(|| (vec![0; BUCKETS.len()], 0.0, 0));
+        for (i, b) in BUCKETS.iter().enumerate() {
+            if seconds <= *b {
+                e.0[i] += 1;
+            }
+        }
+        e.1 += seconds;
+        e.2 += 1;
+    }
+}
+
+/// Everything the daemon's tasks share.
+pub struct Shared {
+    pub cfg: StationConfig,
+    /// the `conformd` binary the workers run
+    pub exe: PathBuf,
+    pub journal: Mutex<Journal>,
+    /// something changed (a capture, a finished job, a request): scan and dispatch
+    pub wake: tokio::sync::Notify,
+    /// stop the running jobs now (the drain's time is up)
+    pub abort: tokio::sync::Notify,
+    pub stopping: AtomicBool,
+    /// capture id -> when its job started
+    pub running: Mutex<BTreeMap<String, Instant>>,
+    pub workers: usize,
+    pub metrics: Mutex<Metrics>,
+    pub rig: Mutex<RigStatus>,
+    pub capture: Option<std::sync::mpsc::Sender<CaptureRequest>>,
+    pub model_busy: AtomicBool,
+    pub model_error: Mutex<Option<String>>,
+    since_rebuild: AtomicUsize,
+    started: Instant,
+}
+
+impl Shared {
+    pub fn captures_dir(&self) -> PathBuf {
+        self.cfg.station.captures()
+    }
+    pub fn incoming_dir(&self) -> PathBuf {
+        self.cfg.station.incoming()
+    }
+    pub fn results_dir(&self) -> PathBuf {
+        self.cfg.station.results()
+    }
+    pub fn journal(&self) -> std::sync::MutexGuard<'_, Journal> {
+        self.journal.lock().unwrap_or_else(|p| p.into_inner())
+    }
+    pub fn uptime(&self) -> f64 {
+        self.started.elapsed().as_secs_f64()
+    }
+}
+
+/// Runs the station until SIGTERM or SIGINT; returns once running jobs have finished or
+/// were put back in the queue.
+///
+/// Example: `conformd daemon --config /etc/conformd/station.toml`; see `tests/daemon.rs`.
+pub fn run(cfg: StationConfig) -> Result<(), DaemonError> {
+    init_tracing();
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .map_err(|e| DaemonError::Config(format!("cannot start the runtime: {e}")))?;
+    rt.block_on(serve(cfg))
+}
+
+fn init_tracing() {
+    // journald keeps stderr; it adds its own time stamps
+    let filter = tracing_subscriber::EnvFilter::try_from_env("CONFORMD_LOG")
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_ansi(false)
+        .with_target(false)
+        .without_time()
+        .try_init();
+}
+
+async fn serve(cfg: StationConfig) -> Result<(), DaemonError> {
+    if cfg.rig.is_none() || cfg.template.is_none() {
+        return Err(DaemonError::Config(format!(
+            "{}: the daemon needs [rig] and [template] to process captures",
+            cfg.file.display()
+        )));
+    }
+    for d in [
+        cfg.station.captures(),
+        cfg.station.incoming(),
+        cfg.station.results(),
+    ] {
+        std::fs::create_dir_all(&d).map_err(io_err(&d))?;
+    }
+    let journal = Journal::open(&cfg.station.data.join("journal.sqlite"))?;
+    let exe = std::env::current_exe().map_err(io_err(Path::new("conformd")))?;
+    let workers = match cfg.daemon.workers {
+        0 => std::thread::available_parallelism()
+            .map(|n| n.get().div_ceil(2))
+            .unwrap_or(1),
+        n => n,
+    };
+    let (channel, rig_status) = rig::start(&cfg)?;
+    let (capture, capture_rx) = match channel {
+        Some((tx, rx)) => (Some(tx), Some(rx)),
+        None => (None, None),
+    };
+    let shared = Arc::new(Shared {
+        exe,
+        journal: Mutex::new(journal),
+        wake: Default::default(),
+        abort: Default::default(),
+        stopping: AtomicBool::new(false),
+        running: Mutex::new(BTreeMap::new()),
+        workers,
+        metrics: Default::default(),
+        rig: Mutex::new(rig_status),
+        capture,
+        model_busy: AtomicBool::new(false),
+        model_error: Mutex::new(None),
+        since_rebuild: AtomicUsize::new(0),
+        started: Instant::now(),
+        cfg,
+    });
+    if let Some(rx) = capture_rx {
+        rig::spawn_capture_thread(shared.clone(), rx);
+    }
+    reconcile(&shared)?;
+    scan(&shared);
+
+    let addr = shared.cfg.daemon.listen.clone();
+    let listener = tokio::net::TcpListener::bind(&addr)
+        .await
+        .map_err(|source| DaemonError::Listen {
+            addr: addr.clone(),
+            source,
+        })?;
+    let app = http::router(shared.clone());
+    let stop = shared.clone();
+    let server = tokio::spawn(async move {
+        let _ = axum::serve(listener, app)
+            .with_graceful_shutdown(async move {
+                while !stop.stopping.load(Ordering::SeqCst) {
+                    tokio::time::sleep(Duration::from_millis(100)).await;
+                }
+            })
+            .await;
+    });
+
+    let (hint_tx, mut hints) = tokio::sync::mpsc::channel::<()>(16);
+    let _watcher = if shared.cfg.daemon.watch {
+        watch(&shared, hint_tx)
+    } else {
+        None
+    };
+    info!(
+        station = %shared.cfg.station.name,
+        listen = %addr,
+        workers,
+        "conformd daemon ready"
+    );
+    let _ = sd_notify::notify(&[sd_notify::NotifyState::Ready]);
+
+    let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
+        .map_err(io_err(Path::new("SIGTERM")))?;
+    let mut int = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::interrupt())
+        .map_err(io_err(Path::new("SIGINT")))?;
+    let mut rescan = tokio::time::interval(Duration::from_secs_f64(shared.cfg.daemon.rescan_s));
+    // pings at under half the watchdog interval, only from this loop: a stuck loop stops them
+    let watchdog_every = sd_notify::watchdog_enabled()
+        .map(|d| d / 3)
+        .unwrap_or(Duration::from_secs(3600));
+    let mut watchdog = tokio::time::interval(watchdog_every);
+    loop {
+        dispatch(&shared);
+        let due = shared
+            .journal()
+            .next_due()
+            .ok()
+            .flatten()
+            .map(|t| (t - journal::now()).clamp(0.05, 60.0))
+            .unwrap_or(60.0);
+        tokio::select! {
+            _ = term.recv() => break,
+            _ = int.recv() => break,
+            _ = shared.wake.notified() => scan(&shared),
+            Some(()) = hints.recv() => {
+                while hints.try_recv().is_ok() {}
+                scan(&shared);
+            }
+            _ = rescan.tick() => scan(&shared),
+            _ = watchdog.tick() => {
+                let c = shared.journal().counts();
+                if let Ok(c) = c {
+                    let status = format!(
+                        "{} queued, {} running, {} done, {} failed",
+                        c.queued, c.running, c.done, c.failed
+                    );
+                    let _ = sd_notify::notify(&[
+                        sd_notify::NotifyState::Watchdog,
+                        sd_notify::NotifyState::Status(&status),
+                    ]);
+                }
+            }
+            _ = tokio::time::sleep(Duration::from_secs_f64(due)) => {}
+        }
+    }
+    drain(&shared).await;
+    let _ = server.await;
+    info!("conformd daemon stopped");
+    Ok(())
+}
+
+/// SIGTERM: nothing new starts; running jobs get `drain_s` to finish, then are stopped
+/// and queued again for the next start.
+async fn drain(shared: &Arc<Shared>) {
+    shared.stopping.store(true, Ordering::SeqCst);
+    let _ = sd_notify::notify(&[sd_notify::NotifyState::Stopping]);
+    let n = shared.running.lock().map(|r| r.len()).unwrap_or(0);
+    info!(running = n, "stopping: waiting for running jobs");
+    let deadline = Instant::now() + Duration::from_secs_f64(shared.cfg.daemon.drain_s);
+    while Instant::now() < deadline {
+        if shared.running.lock().map(|r| r.is_empty()).unwrap_or(true) {
+            return;
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    shared.abort.notify_waiters();
+    while !shared.running.lock().map(|r| r.is_empty()).unwrap_or(true) {
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+}
+
+/// At start-up: half-written results are removed; jobs that were running are queued
+/// again (their attempt counted); a job whose complete result exists is done, never
+/// redone.
+fn reconcile(shared: &Shared) -> Result<(), DaemonError> {
+    let results = shared.results_dir();
+    match crate::station::pipeline::remove_partial_results(&results) {
+        Ok(n) if n > 0 => info!(removed = n, "removed half-written results"),
+        Ok(_) => {}
+        Err(e) => warn!("cleaning {}: {e}", results.display()),
+    }
+    let j = shared.journal();
+    for job in j.running()? {
+        j.interrupted(&job.id)?;
+        info!(capture = %job.id, attempts = job.attempts, "interrupted job queued again");
+    }
+    for job in j.list(Some(State::Queued), usize::MAX)? {
+        let dir = results.join(&job.id);
+        if let Some(seconds) = complete_result(&dir) {
+            j.done(&job.id, &dir, &seconds)?;
+            info!(capture = %job.id, "its complete result exists: done");
+        }
+    }
+    Ok(())
+}
+
+/// The stage timings of a complete result folder, or None when it is not complete.
+fn complete_result(dir: &Path) -> Option<serde_json::Value> {
+    if !crate::station::pipeline::RESULT_FILES
+        .iter()
+        .all(|f| dir.join(f).is_file())
+    {
+        return None;
+    }
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.join("report.json")).ok()?).ok()?;
+    Some(report.get("seconds").cloned().unwrap_or_default())
+}
+
+/// Watches `captures/` and `incoming/`; every event is only a hint to rescan. When
+/// inotify cannot be used (its watch limit reached, a file system without it) the
+/// daemon says so and relies on the periodic rescans.
+fn watch(
+    shared: &Shared,
+    hints: tokio::sync::mpsc::Sender<()>,
+) -> Option<notify::RecommendedWatcher> {
+    use notify::Watcher;
+    let handler = move |_: notify::Result<notify::Event>| {
+        let _ = hints.try_send(());
+    };
+    let mut w = match notify::recommended_watcher(handler) {
+        Ok(w) => w,
+        Err(e) => {
+            warn!("{}", watch_error("the capture folders", &e));
+            return None;
+        }
+    };
+    for d in [shared.captures_dir(), shared.incoming_dir()] {
+        if let Err(e) = w.watch(&d, notify::RecursiveMode::NonRecursive) {
+            warn!("{}", watch_error(&d.display().to_string(), &e));
+            return None;
+        }
+    }
+    Some(w)
+}
+
+fn watch_error(what: &str, e: &notify::Error) -> String {
+    let limit = matches!(e.kind, notify::ErrorKind::MaxFilesWatch)
+        || matches!(&e.kind, notify::ErrorKind::Io(io) if io.raw_os_error() == Some(28));
+    if limit {
+        format!(
+            "cannot watch {what}: the inotify watch limit is reached (raise fs.inotify.max_user_watches); new captures are found by the rescan every few seconds instead"
+        )
+    } else {
+        format!("cannot watch {what}: {e}; new captures are found by the rescan instead")
+    }
+}
+
+/// Finds new capture sets: complete sets in `incoming/` (manifest and every image
+/// present) are moved into `captures/`; every complete set in `captures/` the journal
+/// does not know is queued. Events are hints; this is the truth.
+pub fn scan(shared: &Shared) {
+    let captures = shared.captures_dir();
+    let incoming = shared.incoming_dir();
+    for (name, dir) in complete_sets(&incoming) {
+        let to = captures.join(&name);
+        if to.exists() {
+            warn!(capture = %name, "incoming set not moved: captures/ has a set of this id");
+            continue;
+        }
+        match std::fs::rename(&dir, &to) {
+            Ok(()) => info!(capture = %name, "taken in from incoming/"),
+            Err(e) => warn!(capture = %name, "moving {} into captures/: {e}", dir.display()),
+        }
+    }
+    let j = shared.journal();
+    for (name, dir) in complete_sets(&captures) {
+        match j.contains(&name) {
+            Ok(true) => continue,
+            Ok(false) => {}
+            Err(e) => {
+                error!("{e}");
+                return;
+            }
+        }
+        let subject = crate::rig::capture_set::CaptureSetDir::open(&dir)
+            .ok()
+            .and_then(|s| s.manifest.subject);
+        match j.enqueue(&name, &dir, subject.as_deref()) {
+            Ok(true) => info!(capture = %name, "queued"),
+            Ok(false) => {}
+            Err(e) => error!("{e}"),
+        }
+    }
+}
+
+/// Folders under `root` with a plain name and a `manifest.json` whose listed files are
+/// all there (a set still being copied waits for the next scan).
+fn complete_sets(root: &Path) -> Vec<(String, PathBuf)> {
+    let Ok(rd) = std::fs::read_dir(root) else {
+        return Vec::new();
+    };
+    let mut out = Vec::new();
+    for e in rd.flatten() {
+        let name = e.file_name().to_string_lossy().to_string();
+        if crate::paths::check_plain_name("capture id", &name).is_err() {
+            continue;
+        }
+        let dir = e.path();
+        let manifest = dir.join("manifest.json");
+        if !e.file_type().map(|t| t.is_dir()).unwrap_or(false) || !manifest.is_file() {
+            continue;
+        }
+        // a manifest we cannot read is queued anyway: the job fails with the reason
+        let files: Vec<String> = std::fs::read(&manifest)
+            .ok()
+            .and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok())
+            .and_then(|v| {
+                v.get("cameras")?.as_array().map(|cs| {
+                    cs.iter()
+                        .filter_map(|c| c.get("file")?.as_str().map(str::to_string))
+                        .collect()
+                })
+            })
+            .unwrap_or_default();
+        if files
+            .iter()
+            .all(|f| crate::paths::check_plain_name("file", f).is_err() || dir.join(f).exists())
+        {
+            out.push((name, dir));
+        }
+    }
+    out.sort();
+    out
+}
+
+/// Starts queued jobs while fewer than `workers` run.
+fn dispatch(shared: &Arc<Shared>) {
+    if shared.stopping.load(Ordering::SeqCst) {
+        return;
+    }
+    loop {
+        let busy = shared.running.lock().map(|r| r.len()).unwrap_or(usize::MAX);
+        if busy >= shared.workers {
+            return;
+        }
+        let job = match shared.journal().claim() {
+            Ok(Some(job)) => job,
+            Ok(None) => return,
+            Err(e) => {
+                error!("{e}");
+                return;
+            }
+        };
+        if let Ok(mut r) = shared.running.lock() {
+            r.insert(job.id.clone(), Instant::now());
+        }
+        if let Ok(mut m) = shared.metrics.lock() {
+            m.jobs_started += 1;
+        }
+        tokio::spawn(run_job(shared.clone(), job));
+    }
+}
+
+/// How a worker process ended.
+enum Ended {
+    Outcome(ProcessOutcome),
+    Crashed(String),
+    TimedOut,
+    Aborted,
+    NotStarted(String),
+}
+
+async fn run_job(shared: Arc<Shared>, job: journal::Job) {
+    let cfg = &shared.cfg;
+    let threads = std::thread::available_parallelism()
+        .map(|n| (n.get() / shared.workers).max(1))
+        .unwrap_or(1);
+    let mut cmd = tokio::process::Command::new(&shared.exe);
+    cmd.arg("process")
+        .arg(&job.dir)
+        .arg("--config")
+        .arg(&cfg.file)
+        .arg("--out")
+        .arg(shared.results_dir())
+        .arg("--json")
+        .arg("--parent")
+        .arg(std::process::id().to_string())
+        .env("RAYON_NUM_THREADS", threads.to_string())
+        .stdin(std::process::Stdio::null())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .kill_on_drop(true);
+    info!(capture = %job.id, attempt = job.attempts, "processing");
+    let limit = Duration::from_secs_f64(cfg.daemon.job_timeout_s);
+    let ended = match cmd.spawn() {
+        Err(e) => Ended::NotStarted(e.to_string()),
+        Ok(child) => {
+            tokio::select! {
+                r = tokio::time::timeout(limit, child.wait_with_output()) => match r {
+                    Err(_) => Ended::TimedOut,
+                    Ok(Err(e)) => Ended::NotStarted(e.to_string()),
+                    Ok(Ok(out)) => ended_of(&out),
+                },
+                _ = shared.abort.notified() => Ended::Aborted,
+            }
+        }
+    };
+    finish(&shared, &job, ended);
+    if let Ok(mut r) = shared.running.lock() {
+        r.remove(&job.id);
+    }
+    shared.wake.notify_one();
+}
+
+fn ended_of(out: &std::process::Output) -> Ended {
+    use std::os::unix::process::ExitStatusExt;
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    let last_err = stderr.lines().last().map(str::to_string);
+    if let Some(sig) = out.status.signal() {
+        return Ended::Crashed(format!(
+            "the worker process was killed by signal {sig} ({}){}",
+            signal_name(sig),
+            last_err
+                .map(|l| format!("; it said: {l}"))
+                .unwrap_or_default()
+        ));
+    }
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    match stdout
+        .lines()
+        .rev()
+        .find_map(|l| serde_json::from_str::<ProcessOutcome>(l).ok())
+    {
+        Some(o) => Ended::Outcome(o),
+        None => Ended::Crashed(format!(
+            "the worker process exited with {} without a result{}",
+            out.status,
+            last_err
+                .map(|l| format!("; it said: {l}"))
+                .unwrap_or_default()
+        )),
+    }
+}
+
+fn signal_name(sig: i32) -> &'static str {
+    match sig {
+        6 => "SIGABRT",
+        9 => "SIGKILL: out of memory, or killed",
+        11 => "SIGSEGV",
+        7 => "SIGBUS",
+        4 => "SIGILL",
+        8 => "SIGFPE",
+        15 => "SIGTERM",
+        _ => "a signal",
+    }
+}
+
+/// Records how a job ended: done, failed for good, or queued again with a backoff.
+fn finish(shared: &Arc<Shared>, job: &journal::Job, ended: Ended) {
+    let j = shared.journal();
+    let max = shared.cfg.daemon.max_attempts;
+    let retry = |stage: &str, msg: &str| {
+        let at = (job.attempts < max).then(|| journal::now() + backoff_s(job.attempts));
+        match at {
+            Some(_) => warn!(capture = %job.id, stage, attempt = job.attempts, "{msg}; will retry"),
+            None => {
+                error!(capture = %job.id, stage, "{msg}; giving up after {} attempts", job.attempts)
+            }
+        }
+        if let Err(e) = j.failed(&job.id, stage, msg, at) {
+            error!("{e}");
+        }
+    };
+    match ended {
+        Ended::Outcome(o) if o.ok => {
+            let dir = o
+                .result
+                .clone()
+                .unwrap_or_else(|| shared.results_dir().join(&job.id));
+            let seconds = o.seconds.clone().unwrap_or_default();
+            if let Err(e) = j.done(&job.id, &dir, &seconds) {
+                error!("{e}");
+            }
+            let total = seconds.get("total").and_then(|v| v.as_f64()).unwrap_or(0.0);
+            info!(
+                capture = %job.id,
+                seconds = total,
+                mean_distance_pct = o.mean_distance_relative.unwrap_or(f64::NAN) * 100.0,
+                "done"
+            );
+            if let Ok(mut m) = shared.metrics.lock()
+                && let Some(obj) = seconds.as_object()
+            {
+                for (stage, v) in obj {
+                    if let Some(s) = v.as_f64() {
+                        m.observe(stage, s);
+                    }
+                }
+            }
+            drop(j);
+            let n = shared.since_rebuild.fetch_add(1, Ordering::SeqCst) + 1;
+            let every = shared.cfg.model.rebuild_every;
+            if every > 0 && n >= every {
+                shared.since_rebuild.store(0, Ordering::SeqCst);
+                request_model_rebuild(shared);
+            }
+        }
+        Ended::Outcome(o) => {
+            let stage = o.stage.as_deref().unwrap_or("unknown");
+            let msg = o.error.as_deref().unwrap_or("failed");
+            if o.permanent {
+                error!(capture = %job.id, stage, "{msg}");
+                if let Err(e) = j.failed(&job.id, stage, msg, None) {
+                    error!("{e}");
+                }
+            } else {
+                retry(stage, msg);
+            }
+        }
+        Ended::Crashed(msg) => {
+            if let Ok(mut m) = shared.metrics.lock() {
+                m.worker_crashes += 1;
+            }
+            error!(capture = %job.id, "{msg}");
+            if let Err(e) = j.failed(&job.id, "worker", &msg, None) {
+                error!("{e}");
+            }
+        }
+        Ended::TimedOut => {
+            if let Ok(mut m) = shared.metrics.lock() {
+                m.timeouts += 1;
+            }
+            retry(
+                "worker",
+                &format!(
+                    "stopped after the time limit of {} s",
+                    shared.cfg.daemon.job_timeout_s
+                ),
+            );
+        }
+        Ended::NotStarted(msg) => retry("worker", &format!("the worker could not run: {msg}")),
+        Ended::Aborted => {
+            info!(capture = %job.id, "stopped by the shutdown; queued for the next start");
+            if let Err(e) = j.requeue(&job.id) {
+                error!("{e}");
+            }
+        }
+    }
+}
+
+/// Seconds before attempt `n + 1`: 5, 20, 80 ... up to an hour.
+fn backoff_s(attempts: u32) -> f64 {
+    (5.0 * 4f64.powi(attempts.saturating_sub(1).min(10) as i32)).min(3600.0)
+}
+
+/// Rebuilds the shape model from every done result, in the background; false when a
+/// rebuild is already running or the station has no `[model] file`.
+pub fn request_model_rebuild(shared: &Arc<Shared>) -> bool {
+    if shared.cfg.model.file.is_none() || shared.model_busy.swap(true, Ordering::SeqCst) {
+        return false;
+    }
+    let s = shared.clone();
+    tokio::task::spawn_blocking(move || {
+        let r = rebuild_model(&s);
+        if let Ok(mut e) = s.model_error.lock() {
+            *e = r.as_ref().err().cloned();
+        }
+        match r {
+            Ok(n) => info!(meshes = n, "shape model rebuilt"),
+            Err(e) => warn!("shape model not rebuilt: {e}"),
+        }
+        s.model_busy.store(false, Ordering::SeqCst);
+    });
+    true
+}
+
+/// Builds the model over every done result's conformed mesh and writes it atomically to
+/// `[model] file`; the workers load it for every later job. Returns the mesh count.
+fn rebuild_model(shared: &Shared) -> Result<usize, String> {
+    let path = shared
+        .cfg
+        .model
+        .file
+        .clone()
+        .ok_or("the station file has no [model] file")?;
+    let done = shared
+        .journal()
+        .list(Some(State::Done), usize::MAX)
+        .map_err(|e| e.to_string())?;
+    let mut samples = Vec::new();
+    for job in done {
+        let Some(dir) = job.result else { continue };
+        match crate::mesh::read_mesh(&dir.join("conformed.ply")) {
+            Ok(m) => samples.push((job.id, m)),
+            Err(e) => warn!("model: {e}"),
+        }
+    }
+    samples.sort_by(|a, b| a.0.cmp(&b.0));
+    let model = crate::model::ShapeModel::build(&samples, &Default::default())
+        .map_err(|e| e.to_string())?;
+    model.save(&path).map_err(|e| e.to_string())?;
+    Ok(samples.len())
+}

@@ -1,0 +1,708 @@
+//! The station daemon as a separate process: captures fired through a simulated trigger
+//! box over a pseudo-terminal, sets dropped into `incoming/` (in a burst, with and
+//! without inotify), SIGKILL and restart, SIGTERM during work, corrupt sets and a crashing
+//! worker, and the API's refusals. Results, journal and API must agree; every capture is
+//! processed exactly once.
+
+use conformd::daemon::journal::{Journal, State};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::OnceLock;
+use std::time::{Duration, Instant};
+
+const BIN: &str = env!("CARGO_BIN_EXE_conformd");
+
+/// A two-pod rig at 640x480 (the example rig's geometry at half the resolution): the
+/// same code path at a quarter of the pixels.
+fn small_rig(dir: &Path) -> PathBuf {
+    let text = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("config/rig.example.toml"),
+    )
+    .unwrap()
+    .replace("image = [1280, 960]", "image = [640, 480]")
+    .replace("focal_px = 1100.0", "focal_px = 550.0")
+    .replace("speckle_px = 3.0", "speckle_px = 2.0");
+    let p = dir.join("rig.toml");
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+/// Six simulated captures of a pig in different postures, with calibrations, made once.
+fn simulated() -> &'static (tempfile::TempDir, Vec<PathBuf>) {
+    static SIM: OnceLock<(tempfile::TempDir, Vec<PathBuf>)> = OnceLock::new();
+    SIM.get_or_init(|| {
+        let dir = tempfile::tempdir().unwrap();
+        let rig = small_rig(dir.path());
+        let mut sets = Vec::new();
+        for pose in [
+            "swing=8,nod=-6",
+            "swing=-10,nod=4",
+            "swing=0,nod=10,twist=5",
+            "swing=14,twist=-6",
+            "nod=-12",
+            "swing=-4,nod=-3,twist=8",
+        ] {
+            sets.extend(
+                conformd::jobs::simulate(&rig, "pig", pose, 1, 2.0, &dir.path().join("sim"))
+                    .unwrap(),
+            );
+        }
+        (dir, sets)
+    })
+}
+
+fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+/// A station in `dir`: data under `dir/data`, the small rig, a 1,500-vertex pig; its
+/// `[daemon]` listens on `port` with two workers and 1 s rescans unless `daemon` says
+/// otherwise (key, TOML value).
+fn station(dir: &Path, port: u16, extra: &str, daemon: &[(&str, &str)]) -> PathBuf {
+    let (sim, _) = simulated();
+    let listen = format!("\"127.0.0.1:{port}\"");
+    let mut table = std::collections::BTreeMap::from([
+        ("listen", listen.as_str()),
+        ("workers", "2"),
+        ("rescan_s", "1.0"),
+    ]);
+    table.extend(daemon.iter().copied());
+    let daemon: String = table.iter().map(|(k, v)| format!("{k} = {v}\n")).collect();
+    let p = dir.join("station.toml");
+    std::fs::write(
+        &p,
+        format!(
+            "[station]\nname = \"crate-t\"\ndata = \"data\"\n\
+             [template]\ngeneric = \"pig\"\nvertices = 1500\n\
+             [conform]\nmax_iterations = 10\n\
+             [rig]\nfile = \"{}\"\ncalibration = \"{}\"\n\
+             [model]\nfile = \"data/model.json\"\n[daemon]\n{daemon}{extra}\n",
+            sim.path().join("rig.toml").display(),
+            sim.path().join("sim/calibration").display(),
+        ),
+    )
+    .unwrap();
+    p
+}
+
+/// Copies a simulated set into `root` under a new id.
+fn drop_set(from: &Path, root: &Path, id: &str) -> PathBuf {
+    let tmp = root.join(format!(".{id}.copying"));
+    std::fs::create_dir_all(&tmp).unwrap();
+    for e in std::fs::read_dir(from).unwrap() {
+        let e = e.unwrap();
+        if e.file_name() == "manifest.json" {
+            let mut v: serde_json::Value =
+                serde_json::from_slice(&std::fs::read(e.path()).unwrap()).unwrap();
+            v["id"] = id.into();
+            std::fs::write(tmp.join("manifest.json"), serde_json::to_vec(&v).unwrap()).unwrap();
+        } else {
+            std::fs::copy(e.path(), tmp.join(e.file_name())).unwrap();
+        }
+    }
+    let to = root.join(id);
+    std::fs::rename(&tmp, &to).unwrap();
+    to
+}
+
+struct Daemon {
+    child: Child,
+    port: u16,
+    log: PathBuf,
+}
+
+impl Daemon {
+    fn start(config: &Path, port: u16, env: &[(&str, &str)]) -> Daemon {
+        let log = config.with_file_name(format!("daemon-{}.log", rand_tag()));
+        let mut cmd = Command::new(BIN);
+        cmd.arg("daemon")
+            .arg("--config")
+            .arg(config)
+            .stdout(Stdio::null())
+            .stderr(std::fs::File::create(&log).unwrap());
+        for (k, v) in env {
+            cmd.env(k, v);
+        }
+        let d = Daemon {
+            child: cmd.spawn().unwrap(),
+            port,
+            log,
+        };
+        d.wait_for(Duration::from_secs(30), "the API to answer", |d| {
+            d.get("/healthz").0 == 200
+        });
+        d
+    }
+
+    fn url(&self, path: &str) -> String {
+        format!("http://127.0.0.1:{}{path}", self.port)
+    }
+
+    fn get(&self, path: &str) -> (u16, String) {
+        request("GET", &self.url(path), None, None)
+    }
+
+    fn status(&self) -> serde_json::Value {
+        serde_json::from_str(&self.get("/api/status").1).unwrap_or_default()
+    }
+
+    fn wait_for(&self, limit: Duration, what: &str, f: impl Fn(&Daemon) -> bool) {
+        let t = Instant::now();
+        while t.elapsed() < limit {
+            if f(self) {
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(100));
+        }
+        panic!(
+            "waited {limit:?} for {what}; daemon log:\n{}",
+            std::fs::read_to_string(&self.log).unwrap_or_default()
+        );
+    }
+
+    /// Waits until `n` captures are done or failed and nothing is queued or running.
+    fn wait_settled(&self, n: u64, limit: Duration) {
+        self.wait_for(limit, &format!("{n} captures to settle"), |d| {
+            let q = &d.status()["queue"];
+            let settled = q["done"].as_u64().unwrap_or(0) + q["failed"].as_u64().unwrap_or(0);
+            settled >= n && q["queued"] == 0 && q["running"] == 0
+        });
+    }
+
+    fn signal(&self, sig: &str) {
+        Command::new("kill")
+            .args([sig, &self.child.id().to_string()])
+            .status()
+            .unwrap();
+    }
+
+    fn log(&self) -> String {
+        std::fs::read_to_string(&self.log).unwrap_or_default()
+    }
+}
+
+impl Drop for Daemon {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn rand_tag() -> u128 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .as_nanos()
+}
+
+/// One HTTP request; returns the status and the body.
+fn request(method: &str, url: &str, body: Option<&[u8]>, token: Option<&str>) -> (u16, String) {
+    let agent: ureq::Agent = ureq::Agent::config_builder()
+        .http_status_as_error(false)
+        .timeout_global(Some(Duration::from_secs(60)))
+        .build()
+        .into();
+    let auth = token.map(|t| format!("Bearer {t}"));
+    let r = match method {
+        "GET" => {
+            let mut r = agent.get(url);
+            if let Some(a) = &auth {
+                r = r.header("Authorization", a);
+            }
+            r.call()
+        }
+        _ => {
+            let mut r = agent.post(url);
+            if let Some(a) = &auth {
+                r = r.header("Authorization", a);
+            }
+            match body {
+                Some(b) => r.header("Content-Type", "application/json").send(b),
+                None => r.send_empty(),
+            }
+        }
+    };
+    match r {
+        Ok(mut resp) => {
+            let status = resp.status().as_u16();
+            let bytes = resp.body_mut().read_to_vec().unwrap_or_default();
+            let text = String::from_utf8_lossy(&bytes).to_string();
+            (status, text)
+        }
+        Err(e) => (0, e.to_string()),
+    }
+}
+
+/// Result folders under `results` that are complete, and hidden leftovers.
+fn results_in(results: &Path) -> (Vec<String>, Vec<String>) {
+    let mut whole = Vec::new();
+    let mut hidden = Vec::new();
+    for e in std::fs::read_dir(results).into_iter().flatten().flatten() {
+        let n = e.file_name().to_string_lossy().to_string();
+        if n.starts_with('.') {
+            hidden.push(n);
+        } else {
+            for f in conformd::station::pipeline::RESULT_FILES {
+                assert!(e.path().join(f).is_file(), "{n} lacks {f}");
+            }
+            whole.push(n);
+        }
+    }
+    whole.sort();
+    (whole, hidden)
+}
+
+fn journal(dir: &Path) -> Journal {
+    Journal::open(&dir.join("data/journal.sqlite")).unwrap()
+}
+
+/// Peak resident memory (kB) of a process and its children, from /proc.
+fn rss_tree_kb(pid: u32) -> u64 {
+    let mut total = 0;
+    for e in std::fs::read_dir("/proc").into_iter().flatten().flatten() {
+        let Ok(p) = e.file_name().to_string_lossy().parse::<u32>() else {
+            continue;
+        };
+        let Ok(stat) = std::fs::read_to_string(format!("/proc/{p}/stat")) else {
+            continue;
+        };
+        let ppid: u32 = stat
+            .rsplit(')')
+            .next()
+            .and_then(|r| r.split_whitespace().nth(1))
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(0);
+        if p == pid || ppid == pid {
+            let status = std::fs::read_to_string(format!("/proc/{p}/status")).unwrap_or_default();
+            total += status
+                .lines()
+                .find(|l| l.starts_with("VmRSS:"))
+                .and_then(|l| l.split_whitespace().nth(1))
+                .and_then(|v| v.parse::<u64>().ok())
+                .unwrap_or(0);
+        }
+    }
+    total
+}
+
+#[test]
+fn captures_fired_through_the_box_are_processed_and_the_api_agrees() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let (_, sets) = simulated();
+    let trigger = conformd::synth::trigger_box::SimulatedBox::start().unwrap();
+    let mut cams = String::new();
+    for pod in ["pod1", "pod2"] {
+        for side in ["left", "right"] {
+            let replay: Vec<String> = sets
+                .iter()
+                .map(|s| format!("\"{}\"", s.display()))
+                .collect();
+            cams.push_str(&format!(
+                "[[cameras]]\nid = \"{pod}-{side}\"\npod = \"{pod}\"\nside = \"{side}\"\nreplay = [{}]\n",
+                replay.join(", ")
+            ));
+        }
+    }
+    let port = free_port();
+    let cfg = station(
+        d,
+        port,
+        &format!(
+            "\n[capture]\nmax_skew_ms = 50.0\n[capture.camera_settings]\nformat = \"GREY\"\nwidth = 640\nheight = 480\n\
+             [trigger]\ndevice = \"{}\"\nreply_timeout_ms = 500\n{cams}",
+            trigger.device.display()
+        ),
+        &[],
+    );
+    let daemon = Daemon::start(&cfg, port, &[]);
+    daemon.wait_for(Duration::from_secs(20), "the box link", |d| {
+        d.status()["rig"]["trigger_connected"] == true
+    });
+    let tags = [
+        "982000000000101",
+        "982000000000102",
+        "982000000000103",
+        "982000000000104",
+    ];
+    for (i, tag) in tags.iter().enumerate() {
+        trigger.rfid(tag);
+        daemon.wait_for(Duration::from_secs(20), "a capture", |d| {
+            d.status()["rig"]["captures"].as_u64() == Some(i as u64 + 1)
+        });
+    }
+    // and one through the API
+    let (code, body) = request(
+        "POST",
+        &daemon.url("/api/trigger"),
+        Some(br#"{"subject":"sow-7"}"#),
+        None,
+    );
+    assert_eq!(code, 201, "{body}");
+    daemon.wait_settled(5, Duration::from_secs(120));
+    assert_eq!(trigger.fired(), 5, "every capture fired the box once");
+
+    let (code, body) = daemon.get("/api/captures?state=done");
+    assert_eq!(code, 200);
+    let listed: Vec<serde_json::Value> = serde_json::from_str(&body).unwrap();
+    assert_eq!(listed.len(), 5, "{body}");
+    let mut subjects: Vec<String> = listed
+        .iter()
+        .map(|j| j["subject"].as_str().unwrap().to_string())
+        .collect();
+    subjects.sort();
+    assert_eq!(
+        subjects,
+        [
+            "982000000000101",
+            "982000000000102",
+            "982000000000103",
+            "982000000000104",
+            "sow-7"
+        ]
+    );
+    let (whole, hidden) = results_in(&d.join("data/results"));
+    assert_eq!(whole.len(), 5);
+    assert!(hidden.is_empty(), "{hidden:?}");
+    for j in &listed {
+        let id = j["id"].as_str().unwrap();
+        assert!(whole.contains(&id.to_string()));
+        let (code, detail) = daemon.get(&format!("/api/captures/{id}"));
+        assert_eq!(code, 200);
+        let detail: serde_json::Value = serde_json::from_str(&detail).unwrap();
+        assert_eq!(detail["report"]["subject"], j["subject"]);
+        assert_eq!(detail["manifest"]["trigger"]["kind"], "serial");
+        let rel = detail["report"]["conformation"]["mean_distance_relative"]
+            .as_f64()
+            .unwrap();
+        assert!(rel < 0.01, "{id}: mean distance {rel}");
+        let (code, png) = daemon.get(&format!("/api/captures/{id}/preview.png"));
+        assert!(code == 200 && png.len() > 1000);
+    }
+    let j = journal(d);
+    assert_eq!(j.counts().unwrap().done, 5);
+    // the model: rebuilt on request, then every result is scored against it
+    let (code, _) = request("POST", &daemon.url("/api/model/rebuild"), None, None);
+    assert_eq!(code, 202);
+    daemon.wait_for(Duration::from_secs(30), "the model", |d| {
+        d.status()["model_exists"] == true
+    });
+    let first = listed[0]["id"].as_str().unwrap().to_string();
+    let (code, _) = request(
+        "POST",
+        &daemon.url(&format!("/api/captures/{first}/reprocess")),
+        None,
+        None,
+    );
+    assert_eq!(code, 202);
+    daemon.wait_for(Duration::from_secs(60), "the reprocessed capture's scores", |d| {
+        let (_, b) = d.get(&format!("/api/captures/{first}"));
+        serde_json::from_str::<serde_json::Value>(&b).unwrap_or_default()["report"]["scores"]["scores_sd"].is_array()
+    });
+    let (_, page) = daemon.get("/");
+    assert!(
+        page.contains("latest-preview") && page.contains("982000000000101"),
+        "{page}"
+    );
+    let (_, metrics) = daemon.get("/metrics");
+    assert!(
+        metrics.contains("conformd_captures{state=\"done\"} 5"),
+        "{metrics}"
+    );
+    assert!(
+        metrics.contains("conformd_stage_seconds_bucket{stage=\"conform\""),
+        "{metrics}"
+    );
+}
+
+#[test]
+fn killed_at_any_point_and_restarted_every_capture_is_processed_exactly_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let (_, sets) = simulated();
+    let port = free_port();
+    let cfg = station(d, port, "", &[]);
+    let incoming = d.join("data/incoming");
+    std::fs::create_dir_all(&incoming).unwrap();
+    let n = 8;
+    for i in 0..n {
+        drop_set(&sets[i % sets.len()], &incoming, &format!("kill-{i:02}"));
+    }
+    for (round, after_ms) in [300u64, 1200, 2500, 4000].into_iter().enumerate() {
+        let daemon = Daemon::start(&cfg, port, &[]);
+        std::thread::sleep(Duration::from_millis(after_ms));
+        daemon.signal("-KILL");
+        std::thread::sleep(Duration::from_millis(300));
+        let c = journal(d).counts().unwrap();
+        eprintln!("round {round}: killed after {after_ms} ms: {c:?}");
+        drop(daemon);
+    }
+    let daemon = Daemon::start(&cfg, port, &[]);
+    daemon.wait_settled(n as u64, Duration::from_secs(120));
+    drop(daemon);
+    let j = journal(d);
+    let jobs = j.list(None, 100).unwrap();
+    assert_eq!(jobs.len(), n);
+    for job in &jobs {
+        assert_eq!(job.state, State::Done, "{}: {:?}", job.id, job.error);
+    }
+    let (whole, hidden) = results_in(&d.join("data/results"));
+    assert_eq!(whole.len(), n, "{whole:?}");
+    assert!(hidden.is_empty(), "partial results left: {hidden:?}");
+    let attempts: Vec<u32> = jobs.iter().map(|j| j.attempts).collect();
+    eprintln!("attempts per capture: {attempts:?}");
+    // the raw captures are untouched
+    for job in &jobs {
+        assert!(job.dir.join("manifest.json").is_file());
+    }
+}
+
+fn burst(watch: bool) {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let (_, sets) = simulated();
+    let port = free_port();
+    let watch = watch.to_string();
+    let cfg = station(d, port, "", &[("rescan_s", "2.0"), ("watch", &watch)]);
+    std::fs::create_dir_all(d.join("data/incoming")).unwrap();
+    let daemon = Daemon::start(&cfg, port, &[]);
+    // 100 sets made aside, then renamed into incoming/ at once
+    let staging = d.join("staging");
+    std::fs::create_dir_all(&staging).unwrap();
+    let n = 100;
+    for i in 0..n {
+        drop_set(&sets[i % sets.len()], &staging, &format!("burst-{i:03}"));
+    }
+    let t = Instant::now();
+    for i in 0..n {
+        let id = format!("burst-{i:03}");
+        std::fs::rename(staging.join(&id), d.join("data/incoming").join(&id)).unwrap();
+    }
+    let pid = daemon.child.id();
+    let peak = std::sync::Arc::new(std::sync::atomic::AtomicU64::new(0));
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let sampler = {
+        let (peak, stop) = (peak.clone(), stop.clone());
+        std::thread::spawn(move || {
+            while !stop.load(std::sync::atomic::Ordering::SeqCst) {
+                peak.fetch_max(rss_tree_kb(pid), std::sync::atomic::Ordering::SeqCst);
+                std::thread::sleep(Duration::from_millis(50));
+            }
+        })
+    };
+    daemon.wait_settled(n as u64, Duration::from_secs(600));
+    stop.store(true, std::sync::atomic::Ordering::SeqCst);
+    sampler.join().unwrap();
+    let secs = t.elapsed().as_secs_f64();
+    let c = journal(d).counts().unwrap();
+    let peak_mb = peak.load(std::sync::atomic::Ordering::SeqCst) as f64 / 1024.0;
+    eprintln!(
+        "burst of {n} (watch {watch}): {} done, {} failed in {secs:.1} s ({:.1} captures/min); peak memory of the daemon and its workers {peak_mb:.0} MB",
+        c.done,
+        c.failed,
+        n as f64 / secs * 60.0
+    );
+    assert_eq!(c.done, n as u64, "{}", daemon.log());
+    let (whole, hidden) = results_in(&d.join("data/results"));
+    assert_eq!(whole.len(), n);
+    assert!(hidden.is_empty());
+    assert!(peak_mb < 1500.0, "peak memory {peak_mb:.0} MB");
+}
+
+#[test]
+fn a_burst_of_100_sets_dropped_into_incoming_is_all_processed() {
+    burst(true);
+}
+
+#[test]
+fn the_same_burst_without_watcher_events_is_found_by_the_rescans() {
+    burst(false);
+}
+
+#[test]
+fn corrupt_sets_fail_with_their_reason_and_a_crashing_job_does_not_stop_the_daemon() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let (_, sets) = simulated();
+    let port = free_port();
+    let cfg = station(d, port, "", &[]);
+    let incoming = d.join("data/incoming");
+    std::fs::create_dir_all(&incoming).unwrap();
+    let staging = d.join("staging");
+    std::fs::create_dir_all(&staging).unwrap();
+    for (i, set) in sets.iter().take(3).enumerate() {
+        drop_set(set, &staging, &format!("good-{i}"));
+    }
+    let s = drop_set(&sets[0], &staging, "truncated");
+    let img = s.join("pod1-left.png");
+    let b = std::fs::read(&img).unwrap();
+    std::fs::write(&img, &b[..b.len() / 4]).unwrap();
+    let s = drop_set(&sets[0], &staging, "badmanifest");
+    std::fs::write(s.join("manifest.json"), b"{ not json").unwrap();
+    let s = drop_set(&sets[0], &staging, "nocamera");
+    let mut v: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(s.join("manifest.json")).unwrap()).unwrap();
+    v["cameras"]
+        .as_array_mut()
+        .unwrap()
+        .retain(|c| c["id"] != "pod2-left");
+    std::fs::write(s.join("manifest.json"), serde_json::to_vec(&v).unwrap()).unwrap();
+    drop_set(&sets[1], &staging, "crashes");
+    let daemon = Daemon::start(&cfg, port, &[("CONFORMD_TEST_CRASH", "crashes")]);
+    for e in std::fs::read_dir(&staging).unwrap() {
+        let e = e.unwrap();
+        std::fs::rename(e.path(), incoming.join(e.file_name())).unwrap();
+    }
+    daemon.wait_settled(7, Duration::from_secs(120));
+    let j = journal(d);
+    let state = |id: &str| j.get(id).unwrap().unwrap();
+    for i in 0..3 {
+        assert_eq!(state(&format!("good-{i}")).state, State::Done);
+    }
+    for (id, stage, words) in [
+        ("truncated", "read", "pod1-left.png"),
+        ("badmanifest", "read", "not a valid capture manifest"),
+        ("nocamera", "read", "no left camera of pod pod2"),
+        ("crashes", "worker", "signal 6 (SIGABRT)"),
+    ] {
+        let job = state(id);
+        eprintln!("{id}: {:?} at {:?}: {:?}", job.state, job.stage, job.error);
+        assert_eq!(job.state, State::Failed, "{id}");
+        assert_eq!(job.stage.as_deref(), Some(stage), "{id}");
+        assert!(
+            job.error.as_deref().unwrap_or("").contains(words),
+            "{id}: {:?}",
+            job.error
+        );
+        assert_eq!(job.attempts, 1, "{id}: a permanent failure is not retried");
+    }
+    assert_eq!(daemon.get("/healthz").0, 200, "the daemon lives on");
+    let (_, page) = daemon.get("/");
+    assert!(
+        page.contains("SIGABRT") && page.contains("failures"),
+        "the page shows the failures"
+    );
+    let (_, metrics) = daemon.get("/metrics");
+    assert!(
+        metrics.contains("conformd_worker_crashes_total 1"),
+        "{metrics}"
+    );
+}
+
+#[test]
+fn sigterm_during_work_exits_cleanly_and_the_requeued_work_is_done_at_the_next_start() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let (_, sets) = simulated();
+    let port = free_port();
+    let cfg = station(d, port, "", &[("workers", "1"), ("drain_s", "0.2")]);
+    let incoming = d.join("data/incoming");
+    std::fs::create_dir_all(&incoming).unwrap();
+    for (i, set) in sets.iter().take(4).enumerate() {
+        drop_set(set, &incoming, &format!("term-{i}"));
+    }
+    let mut daemon = Daemon::start(&cfg, port, &[]);
+    daemon.wait_for(Duration::from_secs(30), "a running job", |d| {
+        d.status()["queue"]["running"].as_u64().unwrap_or(0) > 0
+    });
+    let t = Instant::now();
+    daemon.signal("-TERM");
+    let code = loop {
+        if let Some(s) = daemon.child.try_wait().unwrap() {
+            break s;
+        }
+        assert!(
+            t.elapsed() < Duration::from_secs(10),
+            "still running 10 s after SIGTERM"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    let took = t.elapsed().as_secs_f64();
+    eprintln!("SIGTERM to exit: {took:.2} s, {code}");
+    assert!(code.success(), "{code}: {}", daemon.log());
+    let c = journal(d).counts().unwrap();
+    assert_eq!(c.running, 0, "nothing is left running in the journal");
+    assert!(c.queued >= 1, "work was re-queued: {c:?}");
+    let (_, hidden) = results_in(&d.join("data/results"));
+    assert!(hidden.is_empty(), "{hidden:?}");
+    drop(daemon);
+    let daemon = Daemon::start(&cfg, port, &[]);
+    daemon.wait_settled(4, Duration::from_secs(120));
+    let c = journal(d).counts().unwrap();
+    assert_eq!(c.done, 4, "{c:?}");
+}
+
+#[test]
+fn the_api_refuses_traversal_oversized_bodies_and_missing_tokens() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let port = free_port();
+    // beyond loopback without a token: refused at start-up
+    let cfg = station(d, port, "", &[("listen", "\"0.0.0.0:1\"")]);
+    let out = Command::new(BIN)
+        .arg("daemon")
+        .arg("--config")
+        .arg(&cfg)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("token"), "{err}");
+
+    let token = "s3cret-station-token-0123";
+    let (listen, quoted) = (format!("\"0.0.0.0:{port}\""), format!("\"{token}\""));
+    let cfg = station(
+        d,
+        port,
+        "",
+        &[("listen", &listen), ("token", &quoted), ("workers", "1")],
+    );
+    let daemon = Daemon::start(&cfg, port, &[]);
+    let url = |p: &str| daemon.url(p);
+    // mutating calls: no token, a wrong one, a right one
+    assert_eq!(
+        request("POST", &url("/api/model/rebuild"), None, None).0,
+        401
+    );
+    assert_eq!(
+        request(
+            "POST",
+            &url("/api/model/rebuild"),
+            None,
+            Some("wrong-token-wrong-token")
+        )
+        .0,
+        401
+    );
+    assert_eq!(request("POST", &url("/api/trigger"), None, None).0, 401);
+    assert_eq!(
+        request("POST", &url("/api/model/rebuild"), None, Some(token)).0,
+        202
+    );
+    // an oversized body
+    let big = vec![b' '; 64 * 1024];
+    assert_eq!(
+        request("POST", &url("/api/trigger"), Some(&big), Some(token)).0,
+        413
+    );
+    // ids that try to leave their folder
+    for bad in ["..", "..%2F..%2Fetc", ".hidden", "a%20b"] {
+        let (code, body) = daemon.get(&format!("/api/captures/{bad}"));
+        assert!(code == 400 || code == 404, "{bad}: {code} {body}");
+    }
+    let (code, _) = daemon.get("/api/captures/x/..%2F..%2Fmanifest.json");
+    assert!(code == 400 || code == 404, "{code}");
+    assert_eq!(daemon.get("/api/captures/unknown-id").0, 404);
+    assert_eq!(daemon.get("/api/captures?state=lost").0, 400);
+    // wrong methods
+    assert_eq!(
+        request("POST", &url("/api/status"), None, Some(token)).0,
+        405
+    );
+    assert_eq!(daemon.get("/api/trigger").0, 405);
+    // reads need no token
+    assert_eq!(daemon.get("/api/status").0, 200);
+}
