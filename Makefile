@@ -2,17 +2,26 @@
 # test. Both first install the system packages the build needs when they are missing.
 
 APT_PACKAGES := libopencv-dev clang libclang-dev pkg-config libudev-dev
+# the status page's browser test runs Debian's headless Chromium
+TEST_PACKAGES := chromium
 CARGO ?= cargo
 DEMO_OUT ?= demo-output
 
-.PHONY: all deps build lint test demo bench clean
+.PHONY: all deps test-deps apt build lint test verify-unit demo bench clean
 
 all: build
 
 # System packages through apt-get (sudo when not root); the Rust toolchain must exist.
 deps:
+	@$(MAKE) --no-print-directory apt PACKAGES="$(APT_PACKAGES)"
+	@command -v $(CARGO) >/dev/null || { echo "cargo is not installed: install the Rust toolchain with rustup"; exit 1; }
+
+test-deps: deps
+	@$(MAKE) --no-print-directory apt PACKAGES="$(TEST_PACKAGES)"
+
+apt:
 	@missing=""; \
-	for p in $(APT_PACKAGES); do \
+	for p in $(PACKAGES); do \
 	  dpkg-query -W -f='$${Status}' $$p 2>/dev/null | grep -q "install ok installed" || missing="$$missing $$p"; \
 	done; \
 	if [ -n "$$missing" ]; then \
@@ -21,7 +30,6 @@ deps:
 	  $$SUDO apt-get update -qq && \
 	  DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq --no-install-recommends $$missing >/dev/null; \
 	fi
-	@command -v $(CARGO) >/dev/null || { echo "cargo is not installed: install the Rust toolchain with rustup"; exit 1; }
 
 build: deps
 	$(CARGO) build --locked --release
@@ -34,8 +42,18 @@ lint: deps
 
 # Lint, then every test, compiled once: the `ci` profile optimises (the known-answer
 # tests are heavy) and keeps debug assertions and overflow checks on.
-test: lint
+test: test-deps lint
 	$(CARGO) test --locked --profile ci
+	@$(MAKE) --no-print-directory verify-unit
+
+# systemd-analyze verify on the unit (where systemd is), pointing at the binary just built.
+verify-unit:
+	@if command -v systemd-analyze >/dev/null; then \
+	  d=$$(mktemp -d); \
+	  sed "s#/usr/local/bin/conformd#$(CURDIR)/target/ci/conformd#" systemd/conformd.service > $$d/conformd.service; \
+	  systemd-analyze verify $$d/conformd.service && echo "systemd unit verified"; \
+	  rc=$$?; rm -rf $$d; exit $$rc; \
+	else echo "systemd-analyze not found: unit not verified"; fi
 
 demo: deps
 	$(CARGO) run --locked --release -- demo --out $(DEMO_OUT)
@@ -44,6 +62,7 @@ bench: deps
 	$(CARGO) bench --locked --bench conform
 	$(CARGO) bench --locked --bench model
 	$(CARGO) bench --locked --bench stereo
+	$(CARGO) bench --locked --bench daemon
 
 clean:
 	$(CARGO) clean

@@ -4,7 +4,7 @@
 mod cli;
 
 use clap::Parser;
-use cli::args::{Cli, Cmd, ModelCmd};
+use cli::args::{Cli, Cmd, DemoKind, ModelCmd};
 use cli::progress;
 use conformd::conform::Method;
 use conformd::jobs;
@@ -87,9 +87,47 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
             let cfg = jobs::check(&config)?;
             conformd::daemon::run(cfg).map_err(|e| jobs::JobError::Usage(e.to_string()))?;
         }
-        Cmd::Demo { out } => {
+        Cmd::Demo {
+            which: DemoKind::Station,
+            out,
+            keep_running,
+        } => {
+            let pb = progress::iterations(12, "render");
+            pb.set_style(
+                indicatif::ProgressStyle::with_template("{prefix} [{bar:30}] {pos}/{len} captures")
+                    .expect("valid template")
+                    .progress_chars("=> "),
+            );
+            let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+            if keep_running {
+                let s = stop.clone();
+                let _ = std::thread::spawn(move || {
+                    let _ = std::io::stdin().read_line(&mut String::new());
+                    s.store(true, std::sync::atomic::Ordering::SeqCst);
+                });
+            }
+            let d = jobs::demo_station(
+                &out,
+                &mut |stage, done, total| {
+                    pb.set_prefix(stage.to_string());
+                    pb.set_length(total);
+                    pb.set_position(done);
+                },
+                &mut |d| {
+                    pb.finish_and_clear();
+                    println!("{d}");
+                    if keep_running {
+                        println!("the daemon keeps running; press Enter to stop it");
+                    }
+                },
+                &mut || keep_running && !stop.load(std::sync::atomic::Ordering::SeqCst),
+            );
+            pb.finish_and_clear();
+            d?;
+        }
+        Cmd::Demo { out, .. } => {
             let mut bars: Vec<(Method, ProgressBar)> = Vec::new();
-            let s = jobs::demo(&out, &mut |m, it| {
+            let s = jobs::demo_paper(&out, &mut |m, it| {
                 if bars.last().map(|b| b.0) != Some(m) {
                     if let Some((_, b)) = bars.last() {
                         b.finish_and_clear();

@@ -706,3 +706,84 @@ fn the_api_refuses_traversal_oversized_bodies_and_missing_tokens() {
     // reads need no token
     assert_eq!(daemon.get("/api/status").0, 200);
 }
+
+/// Headless Chromium (Debian's package; `make test` installs it) runs `args` on `url`.
+fn chromium(args: &[&str], url: &str, profile: &Path) -> std::process::Output {
+    let bin = ["chromium", "chromium-browser"]
+        .into_iter()
+        .find(|b| Command::new(b).arg("--version").output().is_ok())
+        .expect("headless Chromium is needed for the status page test: `make test` installs Debian's chromium package");
+    Command::new(bin)
+        .args([
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--disable-quic",
+            "--no-first-run",
+            "--disable-background-networking",
+            "--disable-component-update",
+            "--disable-sync",
+            "--hide-scrollbars",
+            "--virtual-time-budget=5000",
+        ])
+        .arg(format!("--user-data-dir={}", profile.display()))
+        .args(args)
+        .arg(url)
+        .output()
+        .unwrap()
+}
+
+#[test]
+fn the_status_page_shows_the_latest_capture_and_its_preview_in_a_browser() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let (_, sets) = simulated();
+    let port = free_port();
+    let cfg = station(d, port, "", &[]);
+    let incoming = d.join("data/incoming");
+    std::fs::create_dir_all(&incoming).unwrap();
+    drop_set(&sets[0], &incoming, "page-1");
+    let daemon = Daemon::start(&cfg, port, &[]);
+    daemon.wait_settled(1, Duration::from_secs(60));
+    drop_set(&sets[1], &incoming, "page-2");
+    daemon.wait_settled(2, Duration::from_secs(60));
+    let url = daemon.url("/");
+    let dom = chromium(&["--dump-dom"], &url, &d.join("chrome-1"));
+    let dom = String::from_utf8_lossy(&dom.stdout);
+    assert!(
+        dom.contains("Latest result") && dom.contains("page-2") && dom.contains("latest-preview"),
+        "the page in the browser: {dom}"
+    );
+    let shot = d.join("page.png");
+    let out = chromium(
+        &[
+            "--window-size=1200,1400",
+            &format!("--screenshot={}", shot.display()),
+        ],
+        &url,
+        &d.join("chrome-2"),
+    );
+    assert!(
+        shot.is_file(),
+        "no screenshot: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    // the preview shows: thousands of coloured pixels (the distance colour map) where a
+    // page without its image has only black text, blue links and white
+    let img = image::open(&shot).unwrap().to_rgb8();
+    let coloured = img
+        .pixels()
+        .filter(|p| {
+            let (lo, hi) = (p.0.iter().min().unwrap(), p.0.iter().max().unwrap());
+            hi - lo > 60 && !(p.0[2] > 150 && p.0[0] < 80 && p.0[1] < 80)
+        })
+        .count();
+    eprintln!("status page screenshot: {coloured} coloured pixels");
+    assert!(
+        coloured > 5000,
+        "the preview did not show ({coloured} coloured pixels)"
+    );
+    if let Ok(keep) = std::env::var("CONFORMD_KEEP_SCREENSHOT") {
+        std::fs::copy(&shot, keep).unwrap();
+    }
+}

@@ -82,10 +82,18 @@ pub enum Cmd {
         #[arg(long)]
         config: PathBuf,
     },
-    /// Run the paper's sphere-to-box case with missing data, both methods.
+    /// The main job on built-in defaults, no hardware: `station` runs the daemon on a
+    /// virtual crate (replay cameras, a simulated trigger box), fires 12 captures of a pig
+    /// through the box, processes them and builds the posture model; `paper` runs the
+    /// paper's sphere-to-box case with missing data, both methods.
     Demo {
+        #[arg(value_enum, default_value = "station")]
+        which: DemoKind,
         #[arg(long, default_value = "demo-output")]
         out: PathBuf,
+        /// station demo: keep the daemon and its status page running until Ctrl-C
+        #[arg(long)]
+        keep_running: bool,
     },
     /// Write a generic pig or body template (OBJ with groups, or PLY) and its landmarks.
     Template {
@@ -246,6 +254,12 @@ pub enum Cmd {
         #[arg(long)]
         original: Option<PathBuf>,
     },
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+pub enum DemoKind {
+    Station,
+    Paper,
 }
 
 #[derive(Subcommand)]

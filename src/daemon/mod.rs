@@ -140,12 +140,59 @@ impl Shared {
 /// Example: `conformd daemon --config /etc/conformd/station.toml`; see `tests/daemon.rs`.
 pub fn run(cfg: StationConfig) -> Result<(), DaemonError> {
     init_tracing();
-    let rt = tokio::runtime::Builder::new_multi_thread()
+    runtime()?.block_on(serve(cfg, None, None, None))
+}
+
+fn runtime() -> Result<tokio::runtime::Runtime, DaemonError> {
+    tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()
         .build()
-        .map_err(|e| DaemonError::Config(format!("cannot start the runtime: {e}")))?;
-    rt.block_on(serve(cfg))
+        .map_err(|e| DaemonError::Config(format!("cannot start the runtime: {e}")))
+}
+
+/// A daemon running on a thread of this process (the demo runs one so it can watch the
+/// journal while the real service works).
+pub struct Handle {
+    pub shared: Arc<Shared>,
+    stop: Option<tokio::sync::oneshot::Sender<()>>,
+    thread: Option<std::thread::JoinHandle<Result<(), DaemonError>>>,
+}
+
+impl Handle {
+    /// Starts the daemon on its own thread; returns once it is ready (journal open, first
+    /// rescan done, HTTP server bound). Workers run `exe` (default: this program).
+    pub fn spawn(cfg: StationConfig, exe: Option<PathBuf>) -> Result<Handle, DaemonError> {
+        let (ready_tx, ready_rx) = std::sync::mpsc::channel();
+        let (stop_tx, stop_rx) = tokio::sync::oneshot::channel();
+        let thread = std::thread::spawn(move || {
+            runtime()?.block_on(serve(cfg, exe, Some(stop_rx), Some(ready_tx)))
+        });
+        match ready_rx.recv() {
+            Ok(shared) => Ok(Handle {
+                shared,
+                stop: Some(stop_tx),
+                thread: Some(thread),
+            }),
+            Err(_) => Err(thread
+                .join()
+                .unwrap_or_else(|_| Err(DaemonError::Config("the daemon thread panicked".into())))
+                .err()
+                .unwrap_or_else(|| DaemonError::Config("the daemon stopped at once".into()))),
+        }
+    }
+
+    /// Stops it as SIGTERM would (drain) and waits.
+    pub fn stop(mut self) -> Result<(), DaemonError> {
+        if let Some(s) = self.stop.take() {
+            let _ = s.send(());
+        }
+        match self.thread.take().map(|t| t.join()) {
+            Some(Ok(r)) => r,
+            Some(Err(_)) => Err(DaemonError::Config("the daemon thread panicked".into())),
+            None => Ok(()),
+        }
+    }
 }
 
 fn init_tracing() {
@@ -161,7 +208,12 @@ fn init_tracing() {
         .try_init();
 }
 
-async fn serve(cfg: StationConfig) -> Result<(), DaemonError> {
+async fn serve(
+    cfg: StationConfig,
+    exe: Option<PathBuf>,
+    stop_rx: Option<tokio::sync::oneshot::Receiver<()>>,
+    ready: Option<std::sync::mpsc::Sender<Arc<Shared>>>,
+) -> Result<(), DaemonError> {
     if cfg.rig.is_none() || cfg.template.is_none() {
         return Err(DaemonError::Config(format!(
             "{}: the daemon needs [rig] and [template] to process captures",
@@ -176,7 +228,10 @@ async fn serve(cfg: StationConfig) -> Result<(), DaemonError> {
         std::fs::create_dir_all(&d).map_err(io_err(&d))?;
     }
     let journal = Journal::open(&cfg.station.data.join("journal.sqlite"))?;
-    let exe = std::env::current_exe().map_err(io_err(Path::new("conformd")))?;
+    let exe = match exe {
+        Some(e) => e,
+        None => std::env::current_exe().map_err(io_err(Path::new("conformd")))?,
+    };
     let workers = match cfg.daemon.workers {
         0 => std::thread::available_parallelism()
             .map(|n| n.get().div_ceil(2))
@@ -243,6 +298,19 @@ async fn serve(cfg: StationConfig) -> Result<(), DaemonError> {
         "conformd daemon ready"
     );
     let _ = sd_notify::notify(&[sd_notify::NotifyState::Ready]);
+    if let Some(r) = ready {
+        let _ = r.send(shared.clone());
+    }
+    let mut stop_rx = stop_rx;
+    let stop_requested = async {
+        match stop_rx.as_mut() {
+            Some(rx) => {
+                let _ = rx.await;
+            }
+            None => std::future::pending::<()>().await,
+        }
+    };
+    tokio::pin!(stop_requested);
 
     let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
         .map_err(io_err(Path::new("SIGTERM")))?;
@@ -264,6 +332,7 @@ async fn serve(cfg: StationConfig) -> Result<(), DaemonError> {
             .map(|t| (t - journal::now()).clamp(0.05, 60.0))
             .unwrap_or(60.0);
         tokio::select! {
+            _ = &mut stop_requested => break,
             _ = term.recv() => break,
             _ = int.recv() => break,
             _ = shared.wake.notified() => scan(&shared),
@@ -696,7 +765,8 @@ pub fn request_model_rebuild(shared: &Arc<Shared>) -> bool {
         return false;
     }
     let s = shared.clone();
-    tokio::task::spawn_blocking(move || {
+    // a plain thread: callable from the runtime and from outside it (the demo)
+    std::thread::spawn(move || {
         let r = rebuild_model(&s);
         if let Ok(mut e) = s.model_error.lock() {
             *e = r.as_ref().err().cloned();

@@ -142,7 +142,7 @@ pub struct DemoFigures {
 /// The paper's sphere-to-box case with missing data (Ju et al. 2004, section 3.2), with
 /// both methods: writes the template, the scan with its holes, landmarks, each conformed
 /// mesh and report into `out_dir`.
-pub fn demo(
+pub fn demo_paper(
     out_dir: &Path,
     progress: &mut dyn FnMut(Method, &IterationReport),
 ) -> Result<DemoSummary, JobError> {

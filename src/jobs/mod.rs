@@ -4,12 +4,14 @@
 //! daemon call exactly these.
 
 mod conformation;
+mod demo;
 mod rig;
 mod shapes;
 mod station;
 mod stereo;
 
 pub use conformation::*;
+pub use demo::*;
 pub use rig::*;
 pub use shapes::*;
 pub use station::*;
