@@ -27,7 +27,9 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
         } => {
             let opts = jobs::conform_options(config.as_deref(), method)?;
             let template = match (template, &config) {
-                (Some(t), _) => TemplateSource::named(&t, template_groups),
+                (Some(t), _) => {
+                    TemplateSource::named(&t, template_groups).map_err(jobs::JobError::Usage)?
+                }
                 (None, Some(c)) => jobs::template_from_config(c)?,
                 (None, None) => {
                     return Err(jobs::JobError::Usage(

@@ -28,7 +28,7 @@ pub struct Graph {
 /// - `rest`: #V positions; `neighbours`: #V vertex neighbour lists
 pub fn build(rest: &[V3], neighbours: &[Vec<u32>], count: usize) -> Graph {
     let n = rest.len();
-    let count = count.clamp(4, n);
+    let count = count.max(4).min(n);
     // farthest-point sampling, Euclidean
     let mut nodes = vec![0usize];
     let mut dist: Vec<f64> = rest.iter().map(|p| (p - rest[0]).norm_squared()).collect();

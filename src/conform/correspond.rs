@@ -69,6 +69,33 @@ pub enum ScanError {
 
 const CLOUD_K: usize = 8;
 
+/// Largest coordinate accepted (kilometres in millimetres); beyond it squared distances
+/// lose all precision and the search structures misbehave.
+pub const MAX_COORDINATE: f64 = 1e9;
+
+/// A point set fit for geometry: coordinates within [`MAX_COORDINATE`], and an extent
+/// (not all points in one place). `what` names it in the sentence.
+pub fn check_extent(m: &Mesh, what: &str) -> Result<(), String> {
+    if let Some((i, p)) = m
+        .vertices
+        .iter()
+        .enumerate()
+        .find(|(_, p)| p.iter().any(|c| c.abs() > MAX_COORDINATE))
+    {
+        return Err(format!(
+            "{what}: vertex {i} at ({:e}, {:e}, {:e}) lies beyond {MAX_COORDINATE:e} from the origin",
+            p.x, p.y, p.z
+        ));
+    }
+    if !(m.diagonal() > 0.0) {
+        return Err(format!(
+            "{what}: all {} points lie in one place (no extent)",
+            m.vertices.len()
+        ));
+    }
+    Ok(())
+}
+
 impl ScanSurface {
     /// Prepares a mesh scan (triangles) or a point cloud (no triangles; normals used when
     /// present, estimated from 12 neighbours otherwise).
@@ -80,6 +107,7 @@ impl ScanSurface {
         if scan.vertices.len() < 16 {
             return Err(ScanError::TooFew(scan.vertices.len()));
         }
+        check_extent(scan, "scan").map_err(ScanError::Invalid)?;
         let points = scan.vertices.clone();
         let arr: Vec<[f64; 3]> = points.iter().map(|p| [p.x, p.y, p.z]).collect();
         let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&arr);

@@ -224,8 +224,44 @@ impl ConformOptions {
                 self.local_scale_limit
             ));
         }
-        if self.max_iterations == 0 {
-            return bad("max_iterations must be at least 1".into());
+        // counts that bound work: a typo must not run for hours
+        let counts = [
+            ("max_iterations", self.max_iterations, 1, 1000),
+            ("epsilon_steps", self.epsilon_steps, 1, 1000),
+            ("rotation_iterations", self.rotation_iterations, 1, 50),
+            ("rotation_rings", self.rotation_rings, 1, 10),
+            ("coarse_nodes", self.coarse_nodes, 4, 20_000),
+            ("coarse_iterations", self.coarse_iterations, 1, 10_000),
+            (
+                "solver_max_iterations",
+                self.solver_max_iterations,
+                1,
+                100_000,
+            ),
+            ("align.icp_iterations", self.align.icp_iterations, 1, 10_000),
+        ];
+        for (name, v, lo, hi) in counts {
+            if !(lo..=hi).contains(&v) {
+                return bad(format!("{name} must be {lo} to {hi}, got {v}"));
+            }
+        }
+        if !(self.scan_to_template >= 0.0 && self.scan_to_template.is_finite()) {
+            return bad(format!(
+                "scan_to_template must be 0 or more, got {}",
+                self.scan_to_template
+            ));
+        }
+        for (name, v) in [
+            ("align.template_up", self.align.template_up),
+            ("align.scan_up", self.align.scan_up),
+        ] {
+            if let Some(u) =
+                v.filter(|u| !(u.iter().all(|c| c.is_finite()) && u.iter().any(|c| *c != 0.0)))
+            {
+                return bad(format!(
+                    "{name} must be a finite, non-zero direction, got {u:?}"
+                ));
+            }
         }
         if !(0.0..=180.0).contains(&self.max_normal_angle) {
             return bad(format!(
@@ -512,6 +548,14 @@ pub fn conform_cancellable(
     template
         .validate("template")
         .map_err(ConformError::Template)?;
+    correspond::check_extent(template, "template").map_err(ConformError::Template)?;
+    if template.vertices.len() < 4 || !(template.area() > 0.0) {
+        return Err(ConformError::Template(format!(
+            "{} vertices and an area of {:e}: a template needs at least 4 vertices and a surface",
+            template.vertices.len(),
+            template.area()
+        )));
+    }
     if let Some(g) = opts
         .stiffness
         .keys()

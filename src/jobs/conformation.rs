@@ -110,9 +110,15 @@ pub fn conform_files(
     };
     let lm = landmarks.as_ref().map(|(t, s)| (&t[..], &s[..]));
     let result = conform::conform(&template, &scan, lm, opts, progress)?;
-    mesh::write_mesh(&files.out, &result.mesh)?;
+    // the report first: a failed command leaves neither file
     if let Some(r) = &files.report {
         write_report(r, &result.report)?;
+    }
+    if let Err(e) = mesh::write_mesh(&files.out, &result.mesh) {
+        if let Some(r) = &files.report {
+            let _ = std::fs::remove_file(r);
+        }
+        return Err(e.into());
     }
     Ok(result.report)
 }

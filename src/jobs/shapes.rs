@@ -164,8 +164,7 @@ pub fn model_build(
         .iter()
         .map(|p| Ok((p.display().to_string(), mesh::read_mesh(p)?)))
         .collect::<Result<Vec<_>, JobError>>()?;
-    let model = crate::model::ShapeModel::build(&samples, opts)
-        .map_err(|e| JobError::Usage(e.to_string()))?;
+    let model = crate::model::ShapeModel::build(&samples, opts)?;
     model.save(out)?;
     let q = if quality {
         Some(
@@ -188,8 +187,15 @@ pub fn model_modes(
     out_dir: &Path,
 ) -> Result<Vec<PathBuf>, JobError> {
     use crate::render::{self, Colouring, RenderOptions, View};
-    let model =
-        crate::model::ShapeModel::load(model_path).map_err(|e| JobError::Usage(e.to_string()))?;
+    if !(sigma > 0.0 && sigma <= 10.0) {
+        return Err(JobError::Usage(format!(
+            "sigma = {sigma}: the modes are drawn at 0 to 10 standard deviations"
+        )));
+    }
+    if !(1..=50).contains(&modes) {
+        return Err(JobError::Usage(format!("{modes} modes: draw 1 to 50")));
+    }
+    let model = crate::model::ShapeModel::load(model_path)?;
     std::fs::create_dir_all(out_dir).map_err(|source| JobError::Io {
         path: out_dir.display().to_string(),
         source,

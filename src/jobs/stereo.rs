@@ -351,6 +351,18 @@ pub fn disparity(
             .map_err(|e| JobError::Usage(format!("{}: {e}", p.display())))?
             .to_luma8())
     };
+    let ext = out
+        .extension()
+        .and_then(|e| e.to_str())
+        .unwrap_or("")
+        .to_ascii_lowercase();
+    if ext != "pfm" && ext != "png" {
+        return Err(JobError::Usage(format!(
+            "{}: a disparity map is written as .pfm (float) or .png (16-bit, x16)",
+            out.display()
+        )));
+    }
+    opts.validate().map_err(JobError::Usage)?;
     let (l, r) = (read(left)?, read(right)?);
     if l.dimensions() != r.dimensions() {
         return Err(JobError::Usage(format!(
@@ -361,13 +373,24 @@ pub fn disparity(
             r.dimensions()
         )));
     }
+    if opts.num_disparities as u32 >= l.width() {
+        return Err(JobError::Usage(format!(
+            "{} disparities cannot be searched in an image {} pixels wide",
+            opts.num_disparities,
+            l.width()
+        )));
+    }
     let d =
         crate::stereo::disparity::disparity(l.as_raw(), r.as_raw(), l.width(), l.height(), opts)
             .map_err(JobError::Usage)?;
-    let bytes = if out
-        .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("png"))
-    {
+    if d.valid_share() == 0.0 {
+        return Err(JobError::Usage(format!(
+            "no pixel of {} found its match in {}: the pair has no texture to match (or is not a rectified pair)",
+            left.display(),
+            right.display()
+        )));
+    }
+    let bytes = if ext == "png" {
         let px: Vec<u16> = d
             .values
             .iter()

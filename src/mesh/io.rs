@@ -140,6 +140,21 @@ fn extension(path: &Path) -> String {
         .to_ascii_lowercase()
 }
 
+/// Writes bytes to a new file and syncs it (inside a folder that is renamed into place
+/// whole, where a temporary name per file is not needed).
+pub fn write_synced(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    let mut f = std::fs::File::create(path)?;
+    f.write_all(bytes)?;
+    f.sync_all()
+}
+
+/// Syncs a folder, so renames inside it survive a power cut (best effort).
+pub fn sync_dir(dir: &Path) {
+    if let Ok(d) = std::fs::File::open(dir) {
+        let _ = d.sync_all();
+    }
+}
+
 /// Writes `bytes` to a temporary name in the same directory, syncs it, then renames it
 /// over `path`, so a reader (or a crash) never sees a half-written file.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), FileError> {
@@ -163,9 +178,7 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), FileError> {
         f.sync_all()?;
         std::fs::rename(&tmp, path)?;
         // Sync the directory so the rename itself survives a power cut.
-        if let Ok(d) = std::fs::File::open(&dir) {
-            let _ = d.sync_all();
-        }
+        sync_dir(&dir);
         Ok(())
     })();
     if result.is_err() {

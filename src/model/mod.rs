@@ -40,6 +40,10 @@ pub enum ModelError {
     NotFinite { name: String, vertex: usize },
     #[error("{path}: not a valid shape model: {msg}")]
     File { path: String, msg: String },
+    #[error(
+        "the {samples} meshes are one shape (no variance beyond rounding): a model needs different subjects or postures"
+    )]
+    NoVariance { samples: usize },
 }
 
 /// How samples are aligned before the analysis.
@@ -301,6 +305,18 @@ impl ShapeModel {
         let mut order: Vec<usize> = (0..n).collect();
         order.sort_by(|&a, &b| eig.eigenvalues[b].total_cmp(&eig.eigenvalues[a]));
         let total: f64 = eig.eigenvalues.iter().map(|l| l.max(0.0)).sum();
+        // variance next to nothing, against the shapes' own spread about their centroid,
+        // is rounding: the meshes are one shape, and a model of it would be noise
+        let c = V3::from_iterator(
+            (0..3).map(|a| mean.iter().skip(a).step_by(3).sum::<f64>() / indices.len() as f64),
+        );
+        let spread: f64 = mean
+            .chunks_exact(3)
+            .map(|p| (V3::new(p[0], p[1], p[2]) - c).norm_squared())
+            .sum();
+        if !(total > 1e-12 * spread) {
+            return Err(ModelError::NoVariance { samples: n });
+        }
         let lmax = eig.eigenvalues[order[0]].max(0.0);
         let keep: Vec<usize> = order
             .into_iter()

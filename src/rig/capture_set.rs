@@ -4,8 +4,9 @@
 //! plain names inside the set, files are regular and size-limited, images are checked
 //! against the manifest before anyone matches them.
 
+use crate::mesh::io::{sync_dir, write_synced};
 use crate::paths::check_plain_name;
-use std::io::{Read, Write};
+use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::time::{SystemTime, UNIX_EPOCH};
 
@@ -318,19 +319,6 @@ fn read_regular(path: &Path, max: u64) -> Result<Vec<u8>, ReadError> {
         .read_to_end(&mut bytes)
         .map_err(ReadError::Io)?;
     Ok(bytes)
-}
-
-/// Writes bytes to a file and syncs it.
-fn write_synced(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
-    let mut f = std::fs::File::create(path)?;
-    f.write_all(bytes)?;
-    f.sync_all()
-}
-
-fn sync_dir(dir: &Path) {
-    if let Ok(d) = std::fs::File::open(dir) {
-        let _ = d.sync_all();
-    }
 }
 
 /// Writes a capture set under `root` as `root/<manifest.id>/`: into `root/.<id>.partial/`

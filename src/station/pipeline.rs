@@ -5,13 +5,13 @@
 //! and whether the capture (permanent) or the machine (retryable) is at fault.
 
 use crate::conform::{self, ConformError, ConformOptions, ConformReport, IterationReport};
+use crate::mesh::io::{sync_dir, write_synced};
 use crate::mesh::{Landmark, Mesh};
 use crate::model::{ModelError, Score, ShapeModel};
 use crate::rig::capture_set::{CaptureSetDir, CaptureSetError};
 use crate::station::config::StationConfig;
 use crate::stereo::reconstruct::{ReconstructError, ReconstructReport};
 use crate::stereo::rig::{Reconstruction, RigError};
-use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, RwLock};
@@ -318,18 +318,6 @@ fn unique() -> u128 {
         .duration_since(std::time::UNIX_EPOCH)
         .map(|d| d.as_nanos())
         .unwrap_or(0)
-}
-
-fn write_synced(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
-    let mut f = std::fs::File::create(path)?;
-    f.write_all(bytes)?;
-    f.sync_all()
-}
-
-fn sync_dir(dir: &Path) {
-    if let Ok(d) = std::fs::File::open(dir) {
-        let _ = d.sync_all();
-    }
 }
 
 /// A station's processing set-up, held for the life of a process: the template with its

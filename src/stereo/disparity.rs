@@ -62,9 +62,12 @@ impl Default for SgbmOptions {
 
 impl SgbmOptions {
     pub fn validate(&self) -> Result<(), String> {
-        if self.num_disparities <= 0 || self.num_disparities % 16 != 0 {
+        if self.num_disparities <= 0
+            || self.num_disparities % 16 != 0
+            || self.num_disparities > 1024
+        {
             return Err(format!(
-                "num_disparities must be a positive multiple of 16, got {}",
+                "num_disparities must be a multiple of 16 from 16 to 1024, got {}",
                 self.num_disparities
             ));
         }
@@ -74,9 +77,9 @@ impl SgbmOptions {
                 self.block_size
             ));
         }
-        if self.subpixel_window < 3 || self.subpixel_window % 2 == 0 {
+        if self.subpixel_window < 3 || self.subpixel_window % 2 == 0 || self.subpixel_window > 31 {
             return Err(format!(
-                "subpixel_window must be odd, 3 or more, got {}",
+                "subpixel_window must be odd, 3 to 31, got {}",
                 self.subpixel_window
             ));
         }
@@ -209,9 +212,37 @@ pub fn disparity(
                 }
             }
         }
+        // no match where the left image has no texture to match
+        let (m, m2) = local_moments(&l)?;
+        let min_var = (o.min_contrast * o.min_contrast) as f32;
+        for ((v, a), b) in px
+            .values
+            .iter_mut()
+            .zip(m.data_typed::<f32>()?)
+            .zip(m2.data_typed::<f32>()?)
+        {
+            if b - a * a < min_var {
+                *v = f32::INFINITY;
+            }
+        }
         Ok(px)
     };
     run().map_err(|e| format!("OpenCV: {e}"))
+}
+
+/// Local mean and mean of squares of a grey image over 5x5 windows (CV_32F), whose
+/// difference of squares is the local variance the texture mask reads.
+pub fn local_moments(img: &Mat) -> opencv::Result<(Mat, Mat)> {
+    let mut f = Mat::default();
+    img.convert_to(&mut f, CV_32F, 1.0, 0.0)?;
+    let mut sq = Mat::default();
+    core::multiply(&f, &f, &mut sq, 1.0, -1)?;
+    let (mut mean, mut mean_sq) = (Mat::default(), Mat::default());
+    let k = core::Size::new(5, 5);
+    let anchor = core::Point::new(-1, -1);
+    imgproc::blur(&f, &mut mean, k, anchor, core::BORDER_REFLECT)?;
+    imgproc::blur(&sq, &mut mean_sq, k, anchor, core::BORDER_REFLECT)?;
+    Ok((mean, mean_sq))
 }
 
 /// Each pixel's x and y coordinate as two CV_32F images of `width` x `height`.

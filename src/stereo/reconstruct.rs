@@ -472,15 +472,8 @@ pub fn pod_grid(
     calib3d::reproject_image_to_3d(refined, &mut xyz, &rectifier.rect.q, true, core::CV_32F)?;
     let pts = xyz.data_typed::<core::Vec3f>()?;
     // texture mask: local standard deviation of the rectified left image
-    let mut lf = Mat::default();
-    lr.convert_to(&mut lf, core::CV_32F, 1.0, 0.0)?;
-    let mut sq = Mat::default();
-    core::multiply(&lf, &lf, &mut sq, 1.0, -1)?;
-    let (mut mean, mut mean_sq) = (Mat::default(), Mat::default());
-    let k = Size::new(5, 5);
+    let (mean, mean_sq) = crate::stereo::disparity::local_moments(&lr)?;
     let anchor = core::Point::new(-1, -1);
-    imgproc::blur(&lf, &mut mean, k, anchor, core::BORDER_REFLECT)?;
-    imgproc::blur(&sq, &mut mean_sq, k, anchor, core::BORDER_REFLECT)?;
     // edges: the spread of disparity (unmatched = 0) over the margin's window
     let spread = if o.edge_margin > 0 {
         let side = 2 * o.edge_margin + 1;

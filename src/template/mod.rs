@@ -38,15 +38,18 @@ impl TemplateSource {
     }
 
     /// What a user names on the command line: `pig` or `body` (when no such file exists),
-    /// else a mesh file.
-    pub fn named(name: &str, groups: Option<PathBuf>) -> TemplateSource {
+    /// else an existing mesh file.
+    pub fn named(name: &str, groups: Option<PathBuf>) -> Result<TemplateSource, String> {
         match name.parse::<Kind>() {
-            Ok(kind) if !Path::new(name).exists() => TemplateSource::generic(kind),
-            _ => TemplateSource {
+            Ok(kind) if !Path::new(name).exists() => Ok(TemplateSource::generic(kind)),
+            _ if Path::new(name).exists() => Ok(TemplateSource {
                 mesh: Some(name.into()),
                 groups,
                 ..Default::default()
-            },
+            }),
+            _ => Err(format!(
+                "template '{name}' is neither pig, body nor an existing mesh file"
+            )),
         }
     }
 
@@ -324,7 +327,13 @@ pub fn shape_parameters(kind: Kind) -> Vec<&'static str> {
     }
 }
 
-/// Parses `name=value,name=value` (the CLI's `--pose` and `--shape`).
+/// Shape factors a generic template takes without folding.
+pub const SHAPE_FACTORS: std::ops::RangeInclusive<f64> = 0.7..=1.4;
+/// Pose angles (degrees per joint group) a generic template takes without folding.
+pub const POSE_DEGREES: std::ops::RangeInclusive<f64> = -45.0..=45.0;
+
+/// Parses `name=value,name=value` (the CLI's `--pose` and `--shape`); shape factors must
+/// lie in [`SHAPE_FACTORS`], pose angles in [`POSE_DEGREES`].
 pub fn parse_parameters(
     text: &str,
     known: &[&str],
@@ -347,6 +356,18 @@ pub fn parse_parameters(
             .ok()
             .filter(|x: &f64| x.is_finite())
             .ok_or_else(|| format!("{what} '{k}': '{v}' is not a number"))?;
+        // beyond these a generic template folds over itself
+        let range = match what {
+            "shape" => SHAPE_FACTORS,
+            _ => POSE_DEGREES,
+        };
+        if !range.contains(&x) {
+            return Err(format!(
+                "{what} '{k}' = {x}: must be {} to {}",
+                range.start(),
+                range.end()
+            ));
+        }
         out.insert(k.to_string(), x);
     }
     Ok(out)

@@ -1,0 +1,217 @@
+//! Hostile and careless input (the hostile-input issue's cases fixed so far): each gets
+//! one clear sentence and a failing exit, never a panic, a hang, or a "success" with
+//! garbage; a failed command leaves no output behind.
+
+use conformd::conform::{ConformOptions, conform};
+use conformd::mesh::{Mesh, V3};
+use conformd::synth::icosphere;
+use std::path::Path;
+use std::process::Command;
+use std::time::{Duration, Instant};
+
+/// Runs the binary in `dir`; asserts it failed within 10 s with every word in stderr.
+fn refused(dir: &Path, args: &[&str], words: &[&str]) -> String {
+    let t = Instant::now();
+    let out = Command::new(env!("CARGO_BIN_EXE_conformd"))
+        .args(args)
+        .current_dir(dir)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr).to_string();
+    assert!(
+        t.elapsed() < Duration::from_secs(10),
+        "{args:?} took {:?}",
+        t.elapsed()
+    );
+    assert!(
+        !out.status.success(),
+        "{args:?} succeeded: {}",
+        String::from_utf8_lossy(&out.stdout)
+    );
+    assert!(!err.contains("panicked"), "{args:?} panicked: {err}");
+    for w in words {
+        assert!(err.contains(w), "{args:?}: '{w}' not in: {err}");
+    }
+    err
+}
+
+fn conform_err(template: &Mesh, scan: &Mesh, opts: &ConformOptions) -> String {
+    match conform(template, scan, None, opts, &mut |_| {}) {
+        Err(e) => e.to_string(),
+        Ok(_) => panic!("conformed"),
+    }
+}
+
+#[test]
+fn degenerate_geometry_is_refused_with_a_sentence() {
+    let sphere = icosphere(2);
+    let o = ConformOptions::default();
+    // coordinates near 1e300 (panicked in the kd-tree)
+    let mut far = sphere.clone();
+    far.vertices[3] = V3::new(1e300, 0.0, 0.0);
+    let e = conform_err(&sphere, &far, &o);
+    assert!(e.contains("vertex 3") && e.contains("beyond"), "{e}");
+    // 500 identical points ("mean distance NaN" and a mesh written)
+    let same = Mesh::new(vec![V3::new(0.1, 0.2, 0.3); 500], vec![]);
+    let e = conform_err(&sphere, &same, &o);
+    assert!(e.contains("one place"), "{e}");
+    // a template of one triangle (panicked in the coarse stage)
+    let one = Mesh::new(
+        vec![
+            V3::new(0., 0., 0.),
+            V3::new(1., 0., 0.),
+            V3::new(0., 1., 0.),
+        ],
+        vec![[0, 1, 2]],
+    );
+    let e = conform_err(&one, &sphere, &o);
+    assert!(e.contains("at least 4 vertices"), "{e}");
+}
+
+#[test]
+fn work_bounding_options_have_ranges() {
+    let sphere = icosphere(1);
+    for (set, word) in [
+        (
+            ConformOptions {
+                rotation_rings: 100_000,
+                ..Default::default()
+            },
+            "rotation_rings must be 1 to 10",
+        ),
+        (
+            ConformOptions {
+                max_iterations: 1_000_000,
+                ..Default::default()
+            },
+            "max_iterations",
+        ),
+        (
+            ConformOptions {
+                coarse_nodes: 0,
+                ..Default::default()
+            },
+            "coarse_nodes",
+        ),
+        (
+            ConformOptions {
+                scan_to_template: f64::NAN,
+                ..Default::default()
+            },
+            "scan_to_template",
+        ),
+    ] {
+        let t = Instant::now();
+        let e = conform_err(&sphere, &sphere, &set);
+        assert!(e.contains(word), "{e}");
+        assert!(t.elapsed() < Duration::from_secs(1));
+    }
+}
+
+#[test]
+fn a_model_of_one_shape_is_refused() {
+    let m = icosphere(2);
+    let samples: Vec<(String, Mesh)> = (0..3).map(|i| (format!("m{i}"), m.clone())).collect();
+    let e = conformd::model::ShapeModel::build(&samples, &Default::default())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("one shape") && e.contains("no variance"), "{e}");
+}
+
+#[test]
+fn careless_commands_get_one_clear_line_and_leave_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    // a template name that is neither built in nor a file
+    refused(
+        d,
+        &[
+            "conform",
+            "--template",
+            "cow",
+            "--scan",
+            "s.ply",
+            "--out",
+            "c.ply",
+        ],
+        &["'cow'", "neither pig, body"],
+    );
+    // shape and pose values that fold the template
+    refused(
+        d,
+        &["template", "pig", "--shape", "girth=0", "--out", "t.obj"],
+        &["girth", "0.7 to 1.4"],
+    );
+    refused(
+        d,
+        &["template", "pig", "--pose", "swing=400", "--out", "t.obj"],
+        &["swing", "-45 to 45"],
+    );
+    assert!(!d.join("t.obj").exists());
+    // disparity: a wrong output type, a range wider than the image, a textureless pair
+    let grey = image::GrayImage::from_pixel(64, 48, image::Luma([128]));
+    grey.save(d.join("l.png")).unwrap();
+    grey.save(d.join("r.png")).unwrap();
+    refused(
+        d,
+        &["disparity", "l.png", "r.png", "--out", "d.txt"],
+        &["d.txt", ".pfm", ".png"],
+    );
+    refused(
+        d,
+        &[
+            "disparity",
+            "l.png",
+            "r.png",
+            "--out",
+            "d.pfm",
+            "--num-disparities",
+            "100000",
+        ],
+        &["num_disparities", "1024"],
+    );
+    refused(
+        d,
+        &[
+            "disparity",
+            "l.png",
+            "r.png",
+            "--out",
+            "d.pfm",
+            "--num-disparities",
+            "64",
+        ],
+        &["64 disparities", "64 pixels wide"],
+    );
+    refused(
+        d,
+        &[
+            "disparity",
+            "l.png",
+            "r.png",
+            "--out",
+            "d.pfm",
+            "--num-disparities",
+            "16",
+        ],
+        &["no texture"],
+    );
+    assert!(!d.join("d.pfm").exists() && !d.join("d.txt").exists());
+    // a mesh path that is a device or a folder is not read
+    refused(d, &["info", "/dev/zero"], &["/dev/zero"]);
+    std::fs::create_dir(d.join("folder.ply")).unwrap();
+    refused(
+        d,
+        &["info", "folder.ply"],
+        &["folder.ply", "not a regular file"],
+    );
+    // model modes at NaN standard deviations
+    refused(
+        d,
+        &[
+            "model", "modes", "--model", "m.json", "--sigma", "NaN", "--out", "modes",
+        ],
+        &["sigma", "NaN"],
+    );
+    assert!(!d.join("modes").exists());
+}
