@@ -337,6 +337,8 @@ async fn serve(
             _ = int.recv() => break,
             _ = shared.wake.notified() => scan(&shared),
             Some(()) = hints.recv() => {
+                // a burst of sets is a burst of events: gather them, scan once
+                tokio::time::sleep(Duration::from_millis(150)).await;
                 while hints.try_recv().is_ok() {}
                 scan(&shared);
             }
