@@ -215,3 +215,67 @@ fn careless_commands_get_one_clear_line_and_leave_nothing() {
     );
     assert!(!d.join("modes").exists());
 }
+
+#[test]
+fn a_ply_holding_more_than_its_header_declares_is_refused() {
+    use conformd::mesh::io::{PlyEncoding, ply_bytes, read_ply_bytes};
+    let cloud = Mesh::new(icosphere(1).vertices, vec![]);
+    for enc in [PlyEncoding::Ascii, PlyEncoding::BinaryLittleEndian] {
+        let bytes = ply_bytes(&cloud, enc);
+        let n = cloud.vertices.len();
+        let text = String::from_utf8_lossy(&bytes).to_string();
+        let header_end = text.find("end_header\n").unwrap() + 11;
+        let mut fewer = bytes[..header_end].to_vec();
+        fewer = String::from_utf8(fewer)
+            .unwrap()
+            .replace(
+                &format!("element vertex {n}"),
+                &format!("element vertex {}", n - 2),
+            )
+            .into_bytes();
+        fewer.extend_from_slice(&bytes[header_end..]);
+        let e = read_ply_bytes("scan.ply", &fewer).unwrap_err().to_string();
+        assert!(
+            e.contains("scan.ply") && e.contains("header"),
+            "{enc:?}: {e}"
+        );
+        // the file as written still reads
+        assert_eq!(
+            read_ply_bytes("scan.ply", &bytes).unwrap().vertices.len(),
+            n
+        );
+    }
+}
+
+#[test]
+fn calibration_images_without_a_board_are_refused_quickly() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    // noise at 1280x960: the full board search, without its fast check, ran over a minute
+    let mut seed = 7u32;
+    for i in 0..6 {
+        for side in ["left", "right"] {
+            let img = image::GrayImage::from_fn(1280, 960, |_, _| {
+                seed = seed.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+                image::Luma([(seed >> 24) as u8])
+            });
+            img.save(d.join(format!("{side}{i:02}.png"))).unwrap();
+        }
+    }
+    refused(
+        d,
+        &[
+            "calibrate",
+            "--images",
+            ".",
+            "--board",
+            "9x6",
+            "--square",
+            "0.03",
+            "--out",
+            "pod.yml",
+        ],
+        &["board"],
+    );
+    assert!(!d.join("pod.yml").exists());
+}

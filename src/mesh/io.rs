@@ -569,7 +569,14 @@ impl RowSource for BinaryRows<'_> {
         Ok(())
     }
     fn finish(&mut self) -> Result<(), String> {
-        Ok(())
+        // more data than the header declares: the counts are wrong, the file is not what
+        // it says
+        match self.body.len() - self.pos.min(self.body.len()) {
+            0 => Ok(()),
+            n => Err(format!(
+                "{n} bytes follow the last element the header declares: the header's counts are wrong"
+            )),
+        }
     }
 }
 
@@ -646,6 +653,14 @@ impl RowSource for AsciiRows<'_> {
         Ok(())
     }
     fn finish(&mut self) -> Result<(), String> {
+        for (i, l) in self.lines.by_ref() {
+            if !l.trim().is_empty() {
+                return Err(format!(
+                    "line {}: data after the last element the header declares: the header's counts are wrong",
+                    self.header_lines + i + 1
+                ));
+            }
+        }
         Ok(())
     }
 }

@@ -104,6 +104,13 @@ impl Manifest {
         Ok(())
     }
 
+    /// Parses and checks the bytes of a `manifest.json`.
+    pub fn parse(bytes: &[u8]) -> Result<Manifest, String> {
+        let m: Manifest = serde_json::from_slice(bytes).map_err(|e| e.to_string())?;
+        m.check()?;
+        Ok(m)
+    }
+
     /// Reads and checks a set's manifest (see [`CaptureSetDir::open`]).
     pub fn read(dir: &Path) -> Result<Manifest, CaptureSetError> {
         CaptureSetDir::open(dir).map(|s| s.manifest)
@@ -220,8 +227,7 @@ impl CaptureSetDir {
             ReadError::Io(source) => io_err(&p)(source),
             ReadError::Refused(msg) => bad(msg),
         })?;
-        let manifest: Manifest = serde_json::from_slice(&bytes).map_err(|e| bad(e.to_string()))?;
-        manifest.check().map_err(bad)?;
+        let manifest = Manifest::parse(&bytes).map_err(bad)?;
         Ok(CaptureSetDir {
             dir: dir.to_path_buf(),
             manifest,

@@ -50,15 +50,55 @@ impl std::fmt::Display for CalibrationReport {
 }
 
 fn corners(img: &Mat, cols: u32, rows: u32) -> opencv::Result<Option<Vector<Point2f>>> {
+    // search a copy at most 640 pixels wide (the search's time grows with the pixels, and
+    // on an image without a board it tries everything), then refine at full size
+    let width = img.cols().max(1);
+    let scale = (width as f64 / 640.0).max(1.0);
+    let small = if scale > 1.0 {
+        let mut m = Mat::default();
+        imgproc::resize(
+            img,
+            &mut m,
+            Size::new(
+                (img.cols() as f64 / scale).round() as i32,
+                (img.rows() as f64 / scale).round() as i32,
+            ),
+            0.0,
+            0.0,
+            imgproc::INTER_AREA,
+        )?;
+        Some(m)
+    } else {
+        None
+    };
     let mut c = Vector::<Point2f>::new();
     let found = calib3d::find_chessboard_corners(
-        img,
+        small.as_ref().unwrap_or(img),
         Size::new(cols as i32, rows as i32),
         &mut c,
-        calib3d::CALIB_CB_ADAPTIVE_THRESH | calib3d::CALIB_CB_NORMALIZE_IMAGE,
+        // the fast check gives up early on an image without a board
+        calib3d::CALIB_CB_ADAPTIVE_THRESH
+            | calib3d::CALIB_CB_NORMALIZE_IMAGE
+            | calib3d::CALIB_CB_FAST_CHECK,
     )?;
     if !found {
         return Ok(None);
+    }
+    if scale > 1.0 {
+        let up: Vector<Point2f> = c
+            .iter()
+            .map(|p| {
+                // pixel centres: x_full = (x_small + 0.5) * scale - 0.5
+                Point2f::new(
+                    ((p.x as f64 + 0.5) * scale - 0.5) as f32,
+                    ((p.y as f64 + 0.5) * scale - 0.5) as f32,
+                )
+            })
+            .collect();
+        c = up;
+        let crit = TermCriteria::new(core::TermCriteria_COUNT + core::TermCriteria_EPS, 50, 1e-4)?;
+        let w = (3.0 * scale).ceil() as i32 + 4;
+        imgproc::corner_sub_pix(img, &mut c, Size::new(w, w), Size::new(-1, -1), crit)?;
     }
     let crit = TermCriteria::new(core::TermCriteria_COUNT + core::TermCriteria_EPS, 50, 1e-4)?;
     imgproc::corner_sub_pix(img, &mut c, Size::new(7, 7), Size::new(-1, -1), crit)?;

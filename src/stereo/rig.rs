@@ -67,11 +67,15 @@ pub struct RigFile {
 impl RigFile {
     /// Reads and checks a rig file; errors name the file and the pod.
     pub fn load(path: &Path) -> Result<RigFile, FileError> {
-        let name = path.display().to_string();
         let text = crate::mesh::io::read_text_limited(path, 1 << 20)?;
+        RigFile::parse(&path.display().to_string(), &text)
+    }
+
+    /// Reads and checks a rig file's text; `name` labels the errors.
+    pub fn parse(name: &str, text: &str) -> Result<RigFile, FileError> {
         let rig: RigFile =
-            toml::from_str(&text).map_err(|e| FileError::content(&name, e.to_string()))?;
-        rig.check().map_err(|msg| FileError::content(&name, msg))?;
+            toml::from_str(text).map_err(|e| FileError::content(name, e.to_string()))?;
+        rig.check().map_err(|msg| FileError::content(name, msg))?;
         Ok(rig)
     }
 
