@@ -87,7 +87,7 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
         }
         Cmd::Daemon { config } => {
             let cfg = jobs::check(&config)?;
-            conformd::daemon::run(cfg).map_err(|e| jobs::JobError::Usage(e.to_string()))?;
+            conformd::daemon::run(cfg)?;
         }
         Cmd::Demo {
             which: DemoKind::Station,

@@ -193,7 +193,7 @@ pub fn demo_station(
     let cfg = StationConfig::load(&station_file)?;
     let results = cfg.station.results();
     let t = Instant::now();
-    let daemon = Handle::spawn(cfg, None).map_err(|e| JobError::Usage(e.to_string()))?;
+    let daemon = Handle::spawn(cfg, None)?;
     let shared = daemon.shared.clone();
     wait("the trigger box", Duration::from_secs(20), || {
         shared
@@ -285,7 +285,7 @@ pub fn demo_station(
         std::thread::sleep(Duration::from_millis(200));
     }
     drop(shared);
-    daemon.stop().map_err(|e| JobError::Usage(e.to_string()))?;
+    daemon.stop()?;
     drop(trigger);
     Ok(demo)
 }

@@ -38,7 +38,11 @@ pub enum JobError {
     #[error(transparent)]
     Capture(#[from] crate::rig::capture::CaptureError),
     #[error(transparent)]
-    Rig(#[from] crate::stereo::rig::RigError),
+    Rig(#[from] crate::rig::station::StationError),
+    #[error(transparent)]
+    Daemon(#[from] crate::daemon::DaemonError),
+    #[error(transparent)]
+    StereoRig(#[from] crate::stereo::rig::RigError),
     #[error("{0}")]
     Reconstruct(String),
     #[error(transparent)]

@@ -14,6 +14,6 @@ pub fn capture(
         path: rig.root.display().to_string(),
         source,
     })?;
-    let mut session = rig.open().map_err(|e| JobError::Usage(e.to_string()))?;
+    let mut session = rig.open()?;
     Ok(session.capture(subject)?)
 }

@@ -168,8 +168,7 @@ pub fn model_build(
     model.save(out)?;
     let q = if quality {
         Some(
-            crate::model::quality(&samples, opts, 10, 1)
-                .map_err(|e| JobError::Usage(e.to_string()))?,
+            crate::model::quality(&samples, opts, 10, 1)?,
         )
     } else {
         None
@@ -251,14 +250,12 @@ pub fn model_score(
     paths: &[PathBuf],
 ) -> Result<Vec<crate::model::Score>, JobError> {
     let model =
-        crate::model::ShapeModel::load(model_path).map_err(|e| JobError::Usage(e.to_string()))?;
+        crate::model::ShapeModel::load(model_path)?;
     paths
         .iter()
         .map(|p| {
             let m = mesh::read_mesh(p)?;
-            model
-                .score(&p.display().to_string(), &m)
-                .map_err(|e| JobError::Usage(e.to_string()))
+            Ok(model.score(&p.display().to_string(), &m)?)
         })
         .collect()
 }
