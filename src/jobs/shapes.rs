@@ -167,9 +167,7 @@ pub fn model_build(
     let model = crate::model::ShapeModel::build(&samples, opts)?;
     model.save(out)?;
     let q = if quality {
-        Some(
-            crate::model::quality(&samples, opts, 10, 1)?,
-        )
+        Some(crate::model::quality(&samples, opts, 10, 1)?)
     } else {
         None
     };
@@ -249,8 +247,7 @@ pub fn model_score(
     model_path: &Path,
     paths: &[PathBuf],
 ) -> Result<Vec<crate::model::Score>, JobError> {
-    let model =
-        crate::model::ShapeModel::load(model_path)?;
+    let model = crate::model::ShapeModel::load(model_path)?;
     paths
         .iter()
         .map(|p| {
