@@ -6,7 +6,6 @@
 
 use crate::mesh::io::{sync_dir, write_synced};
 use crate::paths::check_plain_name;
-use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::time::{SystemTime, UNIX_EPOCH};
 
@@ -302,29 +301,20 @@ impl CaptureSetDir {
     }
 }
 
+/// A regular file of at most `max` bytes ([`crate::mesh::io::read_limited`]): an I/O
+/// failure is the machine's, a refusal (not a regular file, too large) the set's.
+fn read_regular(path: &Path, max: u64) -> Result<Vec<u8>, ReadError> {
+    use crate::mesh::FileError;
+    crate::mesh::io::read_limited(path, max).map_err(|e| match e {
+        FileError::Io { source, .. } => ReadError::Io(source),
+        FileError::Content { msg, .. } | FileError::Line { msg, .. } => ReadError::Refused(msg),
+        other => ReadError::Refused(other.to_string()),
+    })
+}
+
 enum ReadError {
     Io(std::io::Error),
     Refused(String),
-}
-
-/// A regular file of at most `max` bytes.
-fn read_regular(path: &Path, max: u64) -> Result<Vec<u8>, ReadError> {
-    let f = std::fs::File::open(path).map_err(ReadError::Io)?;
-    let meta = f.metadata().map_err(ReadError::Io)?;
-    if !meta.is_file() {
-        return Err(ReadError::Refused("not a regular file".into()));
-    }
-    if meta.len() > max {
-        return Err(ReadError::Refused(format!(
-            "{} bytes, more than the {max} allowed",
-            meta.len()
-        )));
-    }
-    let mut bytes = Vec::with_capacity(meta.len() as usize);
-    f.take(max + 1)
-        .read_to_end(&mut bytes)
-        .map_err(ReadError::Io)?;
-    Ok(bytes)
 }
 
 /// Writes a capture set under `root` as `root/<manifest.id>/`: into `root/.<id>.partial/`
