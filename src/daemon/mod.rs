@@ -468,7 +468,7 @@ fn watch_error(what: &str, e: &notify::Error) -> String {
 pub fn scan(shared: &Shared) {
     let captures = shared.captures_dir();
     let incoming = shared.incoming_dir();
-    for (name, dir) in complete_sets(&incoming) {
+    for (name, dir) in complete_sets(&incoming, |_| false) {
         let to = captures.join(&name);
         if to.exists() {
             warn!(capture = %name, "incoming set not moved: captures/ has a set of this id");
@@ -480,15 +480,15 @@ pub fn scan(shared: &Shared) {
         }
     }
     let j = shared.journal();
-    for (name, dir) in complete_sets(&captures) {
-        match j.contains(&name) {
-            Ok(true) => continue,
-            Ok(false) => {}
-            Err(e) => {
-                error!("{e}");
-                return;
-            }
-        }
+    // sets the journal knows are skipped before their manifest is read: after months a
+    // station holds many thousands
+    let known = |name: &str| {
+        j.contains(name).unwrap_or_else(|e| {
+            error!("{e}");
+            true
+        })
+    };
+    for (name, dir) in complete_sets(&captures, known) {
         let subject = crate::rig::capture_set::CaptureSetDir::open(&dir)
             .ok()
             .and_then(|s| s.manifest.subject);
@@ -500,16 +500,16 @@ pub fn scan(shared: &Shared) {
     }
 }
 
-/// Folders under `root` with a plain name and a `manifest.json` whose listed files are
-/// all there (a set still being copied waits for the next scan).
-fn complete_sets(root: &Path) -> Vec<(String, PathBuf)> {
+/// Folders under `root` with a plain name, not `skip`ped, and a `manifest.json` whose
+/// listed files are all there (a set still being copied waits for the next scan).
+fn complete_sets(root: &Path, skip: impl Fn(&str) -> bool) -> Vec<(String, PathBuf)> {
     let Ok(rd) = std::fs::read_dir(root) else {
         return Vec::new();
     };
     let mut out = Vec::new();
     for e in rd.flatten() {
         let name = e.file_name().to_string_lossy().to_string();
-        if crate::paths::check_plain_name("capture id", &name).is_err() {
+        if crate::paths::check_plain_name("capture id", &name).is_err() || skip(&name) {
             continue;
         }
         let dir = e.path();
