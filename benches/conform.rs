@@ -1,25 +1,34 @@
 //! Conformation speed on this machine: the whole `conform` call (global mapping to the
 //! final report) for the sizes issue 2 names, with the time per stage, and how it grows
 //! with template and scan size. Run: `cargo bench --bench conform` (or `make bench`);
-//! `-- --quick` runs the 10k case only.
+//! `-- --quick` runs the 11k and outside-mesh cases only; `-- --peer` also runs trimesh's
+//! Sumner non-rigid ICP (`benches/peer/trimesh_sumner.py`, needs python3 with trimesh,
+//! scipy, rtree) on the 11k case in the same run and prints the speed ratio.
 
 use conformd::conform::{ConformOptions, Conformed, conform};
 use conformd::synth::cases::{self, ArticulatedSpec, Case};
+use conformd::synth::devset;
 use std::time::Instant;
+
+/// The options conformed with: the defaults, or `--options FILE` (a `[conform]`-style
+/// TOML) to measure other settings.
+fn options() -> ConformOptions {
+    let args: Vec<String> = std::env::args().collect();
+    match args.iter().position(|a| a == "--options") {
+        Some(i) => {
+            let text = std::fs::read_to_string(&args[i + 1]).expect("options file");
+            toml::from_str(&text).expect("options parse")
+        }
+        None => ConformOptions::default(),
+    }
+}
 
 fn run(case: &Case, landmarks: bool) -> Conformed {
     let lm = landmarks.then(|| (&case.template_landmarks[..], &case.scan_landmarks[..]));
-    conform(
-        &case.template,
-        &case.scan,
-        lm,
-        &ConformOptions::default(),
-        &mut |_| {},
-    )
-    .expect("conforms")
+    conform(&case.template, &case.scan, lm, &options(), &mut |_| {}).expect("conforms")
 }
 
-fn bench(label: &str, case: &Case, landmarks: bool, repeats: usize, target: Option<f64>) {
+fn bench(label: &str, case: &Case, landmarks: bool, repeats: usize, target: Option<f64>) -> f64 {
     let mut times = Vec::new();
     let mut last = None;
     for _ in 0..repeats {
@@ -60,6 +69,65 @@ fn bench(label: &str, case: &Case, landmarks: bool, repeats: usize, target: Opti
         r.report.iterations.len(),
         e.mean * 100.0,
     );
+    times[times.len() / 2]
+}
+
+/// The peer on the same case, in this run: exports it, runs the Python script, prints
+/// its figures and the ratio of its time to ours.
+fn peer(case: &Case, ours: f64) {
+    use conformd::mesh::io::write_mesh;
+    use conformd::mesh::landmarks::landmarks_text;
+    let dir = tempfile::tempdir().expect("temp dir");
+    let d = dir.path().join("case_11k_landmarks");
+    std::fs::create_dir_all(&d).expect("folder");
+    let truth = case.truth.clone().expect("truth");
+    write_mesh(&d.join("template.obj"), &case.template).expect("write");
+    write_mesh(&d.join("scan.ply"), &case.scan).expect("write");
+    let t = conformd::mesh::Mesh::new(truth, case.template.triangles.clone());
+    write_mesh(&d.join("truth.obj"), &t).expect("write");
+    let holes: String = case
+        .in_hole
+        .iter()
+        .map(|h| if *h { "1\n" } else { "0\n" })
+        .collect();
+    std::fs::write(d.join("in_hole.txt"), holes).expect("write");
+    std::fs::write(
+        d.join("template.lm"),
+        landmarks_text(&case.template_landmarks),
+    )
+    .expect("write");
+    std::fs::write(d.join("scan.lm"), landmarks_text(&case.scan_landmarks)).expect("write");
+    let script =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("benches/peer/trimesh_sumner.py");
+    match std::process::Command::new("python3")
+        .arg(&script)
+        .arg(dir.path())
+        .output()
+    {
+        Ok(out) if out.status.success() => {
+            let text = String::from_utf8_lossy(&out.stdout);
+            print!("peer (trimesh nricp_sumner): {text}");
+            let secs: Option<f64> = text
+                .split_whitespace()
+                .rev()
+                .nth(1)
+                .and_then(|s| s.parse().ok());
+            if let Some(s) = secs {
+                println!(
+                    "peer time / conformd time: {:.0}x (target >= 50x)",
+                    s / ours
+                );
+            }
+        }
+        Ok(out) => println!(
+            "peer did not run: {}",
+            String::from_utf8_lossy(&out.stderr)
+                .lines()
+                .last()
+                .unwrap_or("")
+        ),
+        Err(e) => println!("peer did not run: python3: {e}"),
+    }
 }
 
 fn case(v: usize, pts: usize, turned: bool) -> Case {
@@ -77,10 +145,32 @@ fn main() {
         "conformd conformation benchmark ({} threads)",
         rayon::current_num_threads()
     );
-    let c = case(10_000, 100_000, false);
-    bench("10k onto 100k, landmarks", &c, true, 5, Some(1.0));
-    let c = case(10_000, 100_000, true);
-    bench("10k onto 100k, no landmarks", &c, false, 5, Some(1.0));
+    let c = case(11_300, 100_000, false);
+    let ours = bench("11k onto 100k, landmarks", &c, true, 5, Some(1.0));
+    if std::env::args().any(|a| a == "--peer") {
+        peer(&c, ours);
+    }
+    let c = case(11_300, 100_000, true);
+    bench("11k onto 100k, no landmarks", &c, false, 5, None);
+    // an outside mesh (uneven, open), posed, onto 100k points
+    let cat = devset::with_holes(
+        &devset::uneven(&devset::load("cat").expect("dev mesh"), 0.5, 11),
+        3,
+        0.03,
+        12,
+    )
+    .0;
+    let spec = devset::DevCaseSpec {
+        scan_points: 100_000,
+        ..Default::default()
+    };
+    bench(
+        "cat (outside, 7.9k) onto 100k, landmarks",
+        &devset::case(&cat, &spec),
+        true,
+        5,
+        None,
+    );
     if quick {
         return;
     }

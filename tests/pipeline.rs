@@ -148,7 +148,9 @@ fn a_killed_process_leaves_no_partial_result() {
     let results = d.join("results");
     let id = set.file_name().unwrap().to_string_lossy().to_string();
     let mut killed_while_writing = 0;
-    for delay_ms in [300u64, 1500, 3000, 4500, 6000, 8000] {
+    // kills at fixed times, and one the moment the hidden result folder appears (the
+    // write under way, whatever the machine's speed)
+    for delay_ms in [300u64, 1500, 3000, 4500, 6000, 8000, 0] {
         let mut child = Command::new(BIN)
             .args(["process"])
             .arg(set)
@@ -161,7 +163,24 @@ fn a_killed_process_leaves_no_partial_result() {
             .stderr(std::process::Stdio::null())
             .spawn()
             .unwrap();
-        std::thread::sleep(std::time::Duration::from_millis(delay_ms));
+        if delay_ms > 0 {
+            std::thread::sleep(std::time::Duration::from_millis(delay_ms));
+        } else {
+            let start = std::time::Instant::now();
+            while start.elapsed() < std::time::Duration::from_secs(120)
+                && child.try_wait().unwrap().is_none()
+                && !std::fs::read_dir(&results).is_ok_and(|mut rd| {
+                    rd.any(|e| {
+                        e.unwrap()
+                            .file_name()
+                            .to_string_lossy()
+                            .contains(".partial-")
+                    })
+                })
+            {
+                std::thread::sleep(std::time::Duration::from_millis(5));
+            }
+        }
         let finished = child.try_wait().unwrap().is_some();
         let _ = child.kill();
         child.wait().unwrap();

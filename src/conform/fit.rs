@@ -54,7 +54,18 @@ impl<'a> Fit<'a> {
             }
         }
         let default_method = opts.method == Method::Default;
-        let lap = solve::laplacian(&rest, &template.triangles, default_method, &stiff);
+        // a fragmented template (a scan triangulated per pod) is held together by
+        // springs across its gaps, up to three typical edges long
+        let bridges = if default_method {
+            topology::bridges(
+                &rest,
+                &template.triangles,
+                3.0 * median_edge(&rest, template),
+            )
+        } else {
+            Vec::new()
+        };
+        let lap = solve::laplacian(&rest, &template.triangles, default_method, &stiff, &bridges);
         // Springs are scaled so that epsilon means the same for either weighting.
         let mean_diag = lap.diag.iter().sum::<f64>() / n as f64;
         let lap = solve::Laplacian {
@@ -77,7 +88,10 @@ impl<'a> Fit<'a> {
         let rest_norms = solve::smoothed_rest_norms(&lap, &rest, opts.rotation_rings);
         Fit {
             tris: &template.triangles,
-            neighbours: topology::vertex_neighbours(n, &template.triangles),
+            neighbours: with_bridges(
+                topology::vertex_neighbours(n, &template.triangles),
+                &bridges,
+            ),
             baseline: quality::VariationBaseline::new(&template.vertices, &template.triangles),
             limits: MatchLimits {
                 max_distance: opts.max_distance * diag,
@@ -156,12 +170,14 @@ impl<'a> Fit<'a> {
         cancel: &std::sync::atomic::AtomicBool,
     ) -> (Vec<IterationReport>, bool) {
         let mut reports: Vec<IterationReport> = Vec::new();
+        // relaxation: below epsilon_end once the fit proves too stiff for the subject
+        let mut relaxed: Option<f64> = None;
         for it in 0..opts.max_iterations {
             if cancel.load(std::sync::atomic::Ordering::Relaxed) {
                 break;
             }
             let t_it = Instant::now();
-            let eps = opts.schedule(it, opts.epsilon_start, opts.epsilon_end);
+            let eps = relaxed.unwrap_or(opts.schedule(it, opts.epsilon_start, opts.epsilon_end));
             let limits = MatchLimits {
                 max_distance: opts.schedule(it, opts.max_distance_start, opts.max_distance)
                     * self.diag,
@@ -177,6 +193,20 @@ impl<'a> Fit<'a> {
                 prev.mean_distance = summary.mean_distance;
                 prev.mean_distance_relative = summary.mean_distance / self.diag;
             }
+            // A posture change is fitted to within the scan's noise at epsilon_end; a
+            // fit still farther away is held off by springs too stiff for a change of
+            // shape: loosen them, a step per iteration, down to relax_epsilon.
+            let can_relax = opts.method == Method::Default
+                && opts.relax_epsilon < opts.epsilon_end
+                && relaxed.is_none_or(|e| e > opts.relax_epsilon);
+            let far = summary.mean_distance > opts.relax_distance * self.diag;
+            let eps = if can_relax && it >= opts.epsilon_steps && (relaxed.is_some() || far) {
+                let next = (relaxed.unwrap_or(opts.epsilon_end) * 0.5).max(opts.relax_epsilon);
+                relaxed = Some(next);
+                next
+            } else {
+                eps
+            };
 
             // 3. Grass fire.
             let t = Instant::now();
@@ -199,6 +229,7 @@ impl<'a> Fit<'a> {
                 disp: &disp,
                 ring: &ring,
                 eps,
+                relaxed: relaxed.is_some(),
             };
             let solver_iterations = match opts.method {
                 Method::Default => self.arap_solve(x, &x_prev, &step, opts, times),
@@ -226,7 +257,10 @@ impl<'a> Fit<'a> {
             };
             progress(&rep);
             reports.push(rep);
-            if max_update < opts.tolerance * self.diag && it + 1 >= opts.epsilon_steps {
+            if max_update < opts.tolerance * self.diag
+                && it + 1 >= opts.epsilon_steps
+                && !(can_relax && (far || relaxed.is_some()))
+            {
                 return (reports, true);
             }
         }
@@ -257,11 +291,13 @@ impl<'a> Fit<'a> {
         let mut solver_iterations = 0;
         for _ in 0..opts.rotation_iterations.max(1) {
             let t = Instant::now();
-            let scale = (opts.local_scale_limit > 1.0).then_some((
-                &mut self.local_scale[..],
-                &self.rest_norms[..],
-                opts.local_scale_limit,
-            ));
+            let limit = if s.relaxed {
+                opts.relax_scale_limit
+            } else {
+                opts.local_scale_limit
+            };
+            let scale =
+                (limit > 1.0).then_some((&mut self.local_scale[..], &self.rest_norms[..], limit));
             solve::fit_rotations(
                 &self.lap,
                 &self.rest,
@@ -355,6 +391,26 @@ impl<'a> Fit<'a> {
     }
 }
 
+fn median_edge(rest: &[V3], template: &Mesh) -> f64 {
+    let mut l: Vec<f64> = topology::edges(&template.triangles)
+        .iter()
+        .map(|[a, b]| (rest[*a as usize] - rest[*b as usize]).norm())
+        .collect();
+    if l.is_empty() {
+        return 0.0;
+    }
+    let k = l.len() / 2;
+    *l.select_nth_unstable_by(k, f64::total_cmp).1
+}
+
+fn with_bridges(mut nb: Vec<Vec<u32>>, bridges: &[[u32; 2]]) -> Vec<Vec<u32>> {
+    for &[a, b] in bridges {
+        nb[a as usize].push(b);
+        nb[b as usize].push(a);
+    }
+    nb
+}
+
 /// One iteration's data for the solve.
 struct Step<'s> {
     matches: &'s [Option<super::correspond::Match>],
@@ -363,6 +419,8 @@ struct Step<'s> {
     disp: &'s [V3],
     ring: &'s [u32],
     eps: f64,
+    /// the springs have loosened below epsilon_end (see `ConformOptions::relax_epsilon`)
+    relaxed: bool,
 }
 
 impl Step<'_> {

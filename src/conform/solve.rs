@@ -21,10 +21,19 @@ pub struct Laplacian {
 /// stiffer of the two end vertices' group stiffness.
 ///
 /// - `v`: #V rest positions; `tris`: #F triangles; `stiffness`: #V per-vertex factors
+/// - `bridges`: extra springs between pieces of a fragmented mesh, weighted as a typical
+///   edge (the median weight)
 /// - returns the Laplacian with #V rows
-pub fn laplacian(v: &[V3], tris: &[[u32; 3]], cotangent: bool, stiffness: &[f64]) -> Laplacian {
+pub fn laplacian(
+    v: &[V3],
+    tris: &[[u32; 3]],
+    cotangent: bool,
+    stiffness: &[f64],
+    bridges: &[[u32; 2]],
+) -> Laplacian {
     let n = v.len();
     let mut tri = TriMat::new((n, n));
+    let mut typical: Vec<f64> = Vec::new();
     if cotangent {
         let mut raw: Vec<(u32, u32, f64)> = Vec::with_capacity(tris.len() * 3);
         for t in tris {
@@ -47,6 +56,7 @@ pub fn laplacian(v: &[V3], tris: &[[u32; 3]], cotangent: bool, stiffness: &[f64]
                 k += 1;
             }
             let w = w.max(floor) * stiffness[i as usize].max(stiffness[j as usize]);
+            typical.push(w);
             tri.add_triplet(i as usize, j as usize, w);
             tri.add_triplet(j as usize, i as usize, w);
         }
@@ -56,6 +66,16 @@ pub fn laplacian(v: &[V3], tris: &[[u32; 3]], cotangent: bool, stiffness: &[f64]
             tri.add_triplet(i as usize, j as usize, w);
             tri.add_triplet(j as usize, i as usize, w);
         }
+    }
+    let bridge_weight = if typical.is_empty() {
+        1.0
+    } else {
+        let k = typical.len() / 2;
+        *typical.select_nth_unstable_by(k, f64::total_cmp).1
+    };
+    for &[i, j] in bridges {
+        tri.add_triplet(i as usize, j as usize, bridge_weight);
+        tri.add_triplet(j as usize, i as usize, bridge_weight);
     }
     let weights: CsMat<f64> = tri.to_csr();
     let diag = (0..n)
@@ -360,7 +380,7 @@ mod tests {
     fn pcg_solves_a_path_graph() {
         let v: Vec<V3> = (0..50).map(|i| V3::new(i as f64, 0., 0.)).collect();
         let tris: Vec<[u32; 3]> = (0..48).map(|i| [i, i + 1, i + 2]).collect();
-        let lap = laplacian(&v, &tris, false, &vec![1.0; 50]);
+        let lap = laplacian(&v, &tris, false, &vec![1.0; 50], &[]);
         let d: Vec<f64> = (0..50)
             .map(|i| if i % 7 == 0 { 1.0 } else { 0.0 })
             .collect();

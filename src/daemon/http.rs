@@ -517,6 +517,18 @@ async fn capture_page(Ctx(shared): Ctx<Arc<Shared>>, Path(id): Path<String>) -> 
             format!("{} / {}", c["matched"], c["filled"]),
         );
         row("folded triangles", c["folded_triangles"].to_string());
+        let v = &c["final_variation"];
+        row(
+            "distortion (edge length / area std)",
+            format!(
+                "{:.3} / {:.3}",
+                v["edge_length"]["std"].as_f64().unwrap_or(f64::NAN),
+                v["area"]["std"].as_f64().unwrap_or(f64::NAN)
+            ),
+        );
+        if let Some(w) = c["distortion_warning"].as_str() {
+            row("warning", esc(w));
+        }
         row("seconds", esc(&r["seconds"].to_string()));
         if let Some(s) = r.get("scores").filter(|s| !s.is_null()) {
             row("model scores (sd)", esc(&s["scores_sd"].to_string()));

@@ -119,6 +119,36 @@ pub fn components(nv: usize, tris: &[[u32; 3]]) -> (Vec<u32>, usize) {
     (label, map.len())
 }
 
+/// Bridges between the separate pieces of a fragmented mesh (a scan triangulated per
+/// camera pod, a template with loose parts): each vertex is joined to its nearest vertex
+/// of another component when that lies within `radius`. With them, springs and filling
+/// reach across the gaps, so a piece without data or landmarks cannot drift or slide on
+/// its own. Empty for a connected mesh.
+pub fn bridges(v: &[crate::mesh::V3], tris: &[[u32; 3]], radius: f64) -> Vec<[u32; 2]> {
+    use kiddo::{ImmutableKdTree, SquaredEuclidean};
+    let (label, count) = components(v.len(), tris);
+    if count < 2 || !(radius > 0.0) {
+        return Vec::new();
+    }
+    let arr: Vec<[f64; 3]> = v.iter().map(|p| [p.x, p.y, p.z]).collect();
+    let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&arr);
+    let mut out: Vec<[u32; 2]> = (0..v.len())
+        .filter_map(|i| {
+            tree.within_unsorted::<SquaredEuclidean>(&arr[i], radius * radius)
+                .iter()
+                .filter(|m| label[m.item as usize] != label[i])
+                .min_by(|a, b| a.distance.total_cmp(&b.distance))
+                .map(|m| {
+                    let j = m.item as u32;
+                    [(i as u32).min(j), (i as u32).max(j)]
+                })
+        })
+        .collect();
+    out.sort_unstable();
+    out.dedup();
+    out
+}
+
 /// A summary of a mesh's topology, as the CLI and tests report it.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct TopologyReport {

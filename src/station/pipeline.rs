@@ -193,6 +193,9 @@ impl std::fmt::Display for ProcessReport {
                 s.mahalanobis
             )?;
         }
+        if let Some(w) = &c.distortion_warning {
+            write!(f, "\nwarning: {w}")?;
+        }
         Ok(())
     }
 }

@@ -4,6 +4,8 @@
 //! viewpoints (occluded triangles removed) and resamples it as a noisy point cloud.
 
 pub mod cases;
+pub mod devset;
+pub mod posing;
 pub mod rig;
 pub mod scanner;
 pub mod trigger_box;

@@ -1,0 +1,171 @@
+//! Conformation on the development set of outside meshes (`synth::devset`): per case the
+//! correspondence error (mean, in holes, 95th percentile), triangles flipped against the
+//! truth, the edge-length variation and the time. Run: `cargo bench --bench devset`;
+//! `-- --options FILE` conforms with a `[conform]`-style TOML of options, `-- --only
+//! NAME,...` keeps the cases of those meshes (`captured`, `box` included), `-- --export DIR` writes each case (template,
+//! scan, truth, landmarks) for the peer comparison in `benches/peer/`.
+
+use conformd::conform::{ConformOptions, conform};
+use conformd::mesh::io::write_mesh;
+use conformd::mesh::landmarks::landmarks_text;
+use conformd::mesh::{Mesh, quality};
+use conformd::render::{self, Colouring, RenderOptions};
+use conformd::synth::cases::correspondence_error;
+use conformd::synth::devset;
+use std::path::PathBuf;
+use std::time::Instant;
+
+fn main() {
+    let args: Vec<String> = std::env::args().collect();
+    let value = |flag: &str| {
+        args.iter()
+            .position(|a| a == flag)
+            .and_then(|i| args.get(i + 1).cloned())
+    };
+    let opts: ConformOptions = match value("--options") {
+        Some(p) => toml::from_str(&std::fs::read_to_string(&p).expect("options file"))
+            .expect("options parse"),
+        None => ConformOptions::default(),
+    };
+    let only: Vec<String> = value("--only")
+        .map(|v| v.split(',').map(str::to_string).collect())
+        .unwrap_or_default();
+    let only: Vec<&str> = only.iter().map(String::as_str).collect();
+    let export = value("--export").map(PathBuf::from);
+    let pictures = value("--pictures").map(PathBuf::from);
+    let mut cases = devset::standard_cases(&only).expect("development meshes load");
+    if only.is_empty() || only.contains(&"captured") {
+        cases.extend(devset::captured_cases().expect("the captured case renders"));
+    }
+    println!(
+        "{:<34} {:>6} {:>6} {:>7} | {:>6} {:>6} {:>6} {:>5} | {:>6} {:>6} | {:>6}",
+        "case", "verts", "edgeCV", "points", "mean%", "holes%", "p95%", "flip", "var", "truth", "s"
+    );
+    println!(
+        "  (flip: triangles flipped against the truth; var: edge-length variation std of the result, truth: of the truth)"
+    );
+    let mut sum = 0.0;
+    for c in &cases {
+        let case = &c.case;
+        let truth = case.truth.as_ref().expect("dev cases know the truth");
+        if let Some(dir) = &export {
+            let d = dir.join(c.name.replace([' ', ','], "_").replace("__", "_"));
+            std::fs::create_dir_all(&d).expect("export folder");
+            write_mesh(&d.join("template.obj"), &case.template).expect("write");
+            write_mesh(&d.join("scan.ply"), &case.scan).expect("write");
+            let t = Mesh::new(truth.clone(), case.template.triangles.clone());
+            write_mesh(&d.join("truth.obj"), &t).expect("write");
+            let holes: String = case
+                .in_hole
+                .iter()
+                .map(|h| if *h { "1\n" } else { "0\n" })
+                .collect();
+            std::fs::write(d.join("in_hole.txt"), holes).expect("write");
+            if c.landmarks {
+                std::fs::write(
+                    d.join("template.lm"),
+                    landmarks_text(&case.template_landmarks),
+                )
+                .expect("write");
+                std::fs::write(d.join("scan.lm"), landmarks_text(&case.scan_landmarks))
+                    .expect("write");
+            }
+        }
+        let lm = c
+            .landmarks
+            .then(|| (&case.template_landmarks[..], &case.scan_landmarks[..]));
+        let t = Instant::now();
+        let r = conform(&case.template, &case.scan, lm, &opts, &mut |_| {}).expect("conforms");
+        let secs = t.elapsed().as_secs_f64();
+        let e = correspondence_error(
+            &r.mesh.vertices,
+            truth,
+            &case.in_hole,
+            &case.template.triangles,
+        );
+        let truth_var =
+            quality::variation(&case.template.vertices, truth, &case.template.triangles);
+        sum += e.mean;
+        if let Some(dir) = &pictures {
+            // the result coloured by its correspondence error (0 to 3% of the diagonal)
+            // beside the truth
+            std::fs::create_dir_all(dir).expect("pictures folder");
+            let diag = Mesh::new(truth.clone(), vec![]).diagonal();
+            let err: Vec<f64> = r
+                .mesh
+                .vertices
+                .iter()
+                .zip(truth)
+                .map(|(a, b)| 100.0 * (a - b).norm() / diag)
+                .collect();
+            let colour = Colouring::Values {
+                values: err,
+                min: 0.0,
+                max: 3.0,
+                unit: "% DIAGONAL".into(),
+            };
+            let ro = RenderOptions::default();
+            let t = Mesh::new(truth.clone(), case.template.triangles.clone());
+            let sheet = render::sheet(
+                &[
+                    (
+                        render::render(&r.mesh, &colour, &ro),
+                        format!("{} result", c.name),
+                    ),
+                    (render::render(&t, &Colouring::Plain, &ro), "truth".into()),
+                ],
+                1,
+                [255, 255, 255],
+            );
+            let file = dir.join(format!("{}.png", c.name.replace([' ', ','], "_")));
+            render::save_png(&sheet, &file).expect("picture");
+            write_mesh(&file.with_extension("obj"), &r.mesh).expect("result mesh");
+        }
+        println!(
+            "{:<34} {:>6} {:>6.2} {:>7} | {:>6.3} {:>6.3} {:>6.3} {:>5} | {:>6.3} {:>6.3} | {:>6.2}",
+            c.name,
+            case.template.vertices.len(),
+            devset::edge_cv(&case.template),
+            case.scan.vertices.len(),
+            e.mean * 100.0,
+            e.mean_in_holes * 100.0,
+            e.p95 * 100.0,
+            e.flipped,
+            r.report.final_variation.edge_length.std,
+            truth_var.edge_length.std,
+            secs
+        );
+        let folds =
+            quality::flipped_against(truth, &case.template.vertices, &case.template.triangles);
+        eprintln!(
+            "  distance to the scan {:.3}% of the diagonal, scan spacing {:.3}%",
+            r.report.mean_distance_relative * 100.0,
+            100.0
+                * conformd::conform::correspond::ScanSurface::new(&case.scan)
+                    .map_or(f64::NAN, |s| s.spacing / s.diagonal)
+        );
+        if folds > 0 {
+            println!("  (the truth folds {folds} triangles of the template)");
+        }
+    }
+    println!(
+        "mean over {} cases: {:.3}%",
+        cases.len(),
+        sum / cases.len() as f64 * 100.0
+    );
+    if only.is_empty() || only.contains(&"box") {
+        // the paper's shape change (not a posture): a sphere onto a box with a face
+        // missing, which the defaults must still fill flat
+        let case = conformd::synth::cases::sphere_to_box_with_missing(4);
+        let lm = Some((&case.template_landmarks[..], &case.scan_landmarks[..]));
+        let r = conform(&case.template, &case.scan, lm, &opts, &mut |_| {}).expect("conforms");
+        let f = conformd::synth::cases::box_figures(&r.mesh);
+        println!(
+            "sphere onto box with a missing face: missing region mean {:.3}% p90 {:.3}%, max anywhere {:.3}%; distance to the scan {:.3}%",
+            f.missing_mean * 100.0,
+            f.missing_p90 * 100.0,
+            f.max_anywhere * 100.0,
+            r.report.mean_distance_relative * 100.0
+        );
+    }
+}

@@ -1,0 +1,504 @@
+//! The development set of meshes conformd did not make (`tests/data/meshes`, sources and
+//! licences in `tests/data/README.md`), the variants made from them (uneven triangles,
+//! open boundaries) and their known-answer cases: posed by `posing`, scanned by the
+//! virtual scanner from four sides and above, with noisy landmarks at extremities.
+
+use super::cases::{Case, scan_subject};
+use super::posing::{self, Extremities, PoseSettings};
+use crate::mesh::landmarks::{Landmark, LandmarkPos};
+use crate::mesh::{Mesh, V3, io, keep_triangles, topology};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal};
+use std::path::PathBuf;
+
+/// A mesh of the set: its file under `tests/data/meshes`, stored y-up as published.
+pub struct DevMesh {
+    pub name: &'static str,
+    pub file: &'static str,
+    /// what makes it a test: thin parts, uneven triangles, open boundaries
+    pub traits: &'static str,
+}
+
+pub const MESHES: &[DevMesh] = &[
+    DevMesh {
+        name: "koala",
+        file: "koala.obj",
+        traits: "four-legged, ears, even triangles",
+    },
+    DevMesh {
+        name: "cat",
+        file: "cat.obj",
+        traits: "legs, long thin tail, ears",
+    },
+    DevMesh {
+        name: "human",
+        file: "human.obj",
+        traits: "SMPL body, fingers, edge CV 0.59",
+    },
+    DevMesh {
+        name: "hand",
+        file: "hand.obj",
+        traits: "open at the wrist, thin fingers, edge CV 0.44",
+    },
+];
+
+pub fn data_dir() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/meshes")
+}
+
+/// Loads a mesh of the set turned z-up (the virtual station's cameras look across z).
+pub fn load(name: &str) -> Result<Mesh, String> {
+    let m = MESHES
+        .iter()
+        .find(|m| m.name == name)
+        .ok_or_else(|| format!("no development mesh '{name}'"))?;
+    let mut mesh = io::read_mesh(&data_dir().join(m.file)).map_err(|e| e.to_string())?;
+    for v in &mut mesh.vertices {
+        *v = V3::new(v.x, -v.z, v.y);
+    }
+    Ok(mesh)
+}
+
+/// Edge-length coefficient of variation (std / mean), the triangulation's unevenness.
+pub fn edge_cv(mesh: &Mesh) -> f64 {
+    let l: Vec<f64> = topology::edges(&mesh.triangles)
+        .iter()
+        .map(|[a, b]| (mesh.vertices[*a as usize] - mesh.vertices[*b as usize]).norm())
+        .collect();
+    let mean = l.iter().sum::<f64>() / l.len().max(1) as f64;
+    let var = l.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / l.len().max(1) as f64;
+    var.sqrt() / mean
+}
+
+/// The same surface triangulated unevenly: vertices slid along the surface by up to a
+/// quarter of their shortest edge, then a share of the edges flipped where the flip keeps
+/// both triangles' orientation (long thin triangles, uneven valence), as real
+/// templates are.
+pub fn uneven(mesh: &Mesh, flip_share: f64, seed: u64) -> Mesh {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let n = mesh.vertices.len();
+    let nb = topology::vertex_neighbours(n, &mesh.triangles);
+    let normals = mesh.vertex_normals();
+    let mut v = mesh.vertices.clone();
+    for i in 0..n {
+        let shortest = nb[i]
+            .iter()
+            .map(|&j| (mesh.vertices[i] - mesh.vertices[j as usize]).norm())
+            .fold(f64::INFINITY, f64::min);
+        if !shortest.is_finite() {
+            continue;
+        }
+        let r = V3::new(
+            rng.random_range(-1.0..1.0),
+            rng.random_range(-1.0..1.0),
+            rng.random_range(-1.0..1.0),
+        );
+        let t = r - normals[i] * normals[i].dot(&r);
+        v[i] += t * (shortest / 4.0);
+    }
+    let mut tris = mesh.triangles.clone();
+    let mut by_edge: std::collections::HashMap<[u32; 2], Vec<usize>> =
+        std::collections::HashMap::new();
+    for (t, tri) in tris.iter().enumerate() {
+        for k in 0..3 {
+            let (a, b) = (tri[k], tri[(k + 1) % 3]);
+            by_edge.entry([a.min(b), a.max(b)]).or_default().push(t);
+        }
+    }
+    let mut edges: Vec<[u32; 2]> = by_edge.keys().copied().collect();
+    edges.sort_unstable();
+    let mut touched = vec![false; tris.len()];
+    let mut existing: std::collections::HashSet<[u32; 2]> = edges.iter().copied().collect();
+    let normal = |v: &[V3], t: &[u32; 3]| {
+        (v[t[1] as usize] - v[t[0] as usize]).cross(&(v[t[2] as usize] - v[t[0] as usize]))
+    };
+    for e in edges {
+        if rng.random::<f64>() >= flip_share {
+            continue;
+        }
+        let ts = &by_edge[&e];
+        if ts.len() != 2 || touched[ts[0]] || touched[ts[1]] {
+            continue;
+        }
+        let (t0, t1) = (ts[0], ts[1]);
+        let opposite = |t: &[u32; 3]| t.iter().copied().find(|x| !e.contains(x));
+        let (Some(c), Some(d)) = (opposite(&tris[t0]), opposite(&tris[t1])) else {
+            continue;
+        };
+        if existing.contains(&[c.min(d), c.max(d)]) {
+            continue;
+        }
+        // keep the winding: in t0 the edge runs a -> b with c opposite
+        let k = (0..3).find(|&k| tris[t0][k] == c).unwrap_or(0);
+        let (a, b) = (tris[t0][(k + 1) % 3], tris[t0][(k + 2) % 3]);
+        let (n0, n1) = (normal(&v, &tris[t0]), normal(&v, &tris[t1]));
+        let (new0, new1) = ([c, a, d], [d, b, c]);
+        // no slivers under 5 degrees (a smooth posing folds those, leaving no true
+        // answer) and no flips across a ridge (within 45 degrees of both old normals)
+        let ok = [new0, new1].iter().all(|t| {
+            let nn = normal(&v, t);
+            let c = |m: &V3| nn.dot(m) / (nn.norm() * m.norm()).max(1e-300);
+            nn.norm() > 0.0 && c(&n0) > 0.7 && c(&n1) > 0.7 && min_angle(&v, t) > 5.0
+        });
+        if !ok {
+            continue;
+        }
+        tris[t0] = new0;
+        tris[t1] = new1;
+        touched[t0] = true;
+        touched[t1] = true;
+        existing.remove(&e);
+        existing.insert([c.min(d), c.max(d)]);
+    }
+    Mesh::new(v, tris)
+}
+
+fn min_angle(v: &[V3], t: &[u32; 3]) -> f64 {
+    (0..3)
+        .map(|k| {
+            let o = v[t[k] as usize];
+            let (a, b) = (
+                v[t[(k + 1) % 3] as usize] - o,
+                v[t[(k + 2) % 3] as usize] - o,
+            );
+            a.angle(&b).to_degrees()
+        })
+        .fold(180.0, f64::min)
+}
+
+/// The mesh with `holes` discs of surface (radius `radius` of the diagonal, about
+/// vertices drawn at random) cut out: open boundaries, as templates with eye holes or an
+/// open neck have. Returns the mesh and each kept vertex's old index.
+pub fn with_holes(mesh: &Mesh, holes: usize, radius: f64, seed: u64) -> (Mesh, Vec<u32>) {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let r = radius * mesh.diagonal();
+    let centres: Vec<V3> = (0..holes)
+        .map(|_| mesh.vertices[rng.random_range(0..mesh.vertices.len())])
+        .collect();
+    keep_triangles(mesh, |t| {
+        let [a, b, c] = mesh.corners(t);
+        let mid = (a + b + c) / 3.0;
+        centres.iter().all(|h| (mid - h).norm() > r)
+    })
+}
+
+/// How a development case is made.
+#[derive(Debug, Clone, Copy)]
+pub struct DevCaseSpec {
+    pub pose: PoseSettings,
+    pub scan_points: usize,
+    /// noise along the normal, relative to the diagonal
+    pub noise: f64,
+    pub landmarks: usize,
+    /// landmark noise, relative to the diagonal
+    pub landmark_noise: f64,
+    /// turn (degrees, about a random axis) and shift (relative) of the subject as a whole
+    pub turn: f64,
+    pub shift: f64,
+    pub seed: u64,
+}
+
+impl Default for DevCaseSpec {
+    fn default() -> Self {
+        DevCaseSpec {
+            pose: PoseSettings::default(),
+            scan_points: 60_000,
+            noise: 0.002,
+            landmarks: 12,
+            landmark_noise: 0.002,
+            turn: 0.0,
+            shift: 0.0,
+            seed: 3,
+        }
+    }
+}
+
+/// A known-answer case for any template: the template posed (`posing`), turned and
+/// shifted as asked, scanned from four sides and above; landmarks on the first
+/// farthest-point samples (extremities first), their scan positions the truth plus noise.
+pub fn case(template: &Mesh, spec: &DevCaseSpec) -> Case {
+    let nb = topology::vertex_neighbours(template.vertices.len(), &template.triangles);
+    let ext: Extremities = posing::extremities(template, &nb, spec.landmarks.max(spec.pose.limbs));
+    let mut truth = posing::pose(template, &nb, &ext, &spec.pose);
+    let mut rng = ChaCha8Rng::seed_from_u64(spec.seed);
+    let diag = template.diagonal();
+    if spec.turn != 0.0 || spec.shift != 0.0 {
+        let axis = nalgebra::Unit::new_normalize(V3::new(
+            rng.random_range(-1.0..1.0),
+            rng.random_range(-1.0..1.0),
+            rng.random_range(-1.0..1.0),
+        ));
+        let rot = nalgebra::Rotation3::from_axis_angle(&axis, spec.turn.to_radians());
+        let c = truth.iter().sum::<V3>() / truth.len() as f64;
+        let dir = V3::new(
+            rng.random_range(-1.0..1.0),
+            rng.random_range(-1.0..1.0),
+            rng.random_range(-1.0..1.0),
+        )
+        .normalize();
+        for p in &mut truth {
+            *p = c + rot * (*p - c) + dir * spec.shift * diag;
+        }
+    }
+    let subject = Mesh::new(truth.clone(), template.triangles.clone());
+    let (scan, in_hole) = scan_subject(
+        &subject,
+        &[0.0, 90.0, 180.0, 270.0],
+        spec.scan_points,
+        spec.noise,
+        spec.seed,
+    );
+    let g = Normal::new(0.0, spec.landmark_noise * diag).expect("valid sigma");
+    let picked: Vec<u32> = ext
+        .samples
+        .iter()
+        .take(spec.landmarks)
+        .map(|s| s.0)
+        .collect();
+    let template_landmarks = picked
+        .iter()
+        .enumerate()
+        .map(|(k, &v)| Landmark {
+            name: format!("x{k}"),
+            pos: LandmarkPos::Vertex(v),
+        })
+        .collect();
+    let scan_landmarks = picked
+        .iter()
+        .enumerate()
+        .map(|(k, &v)| Landmark {
+            name: format!("x{k}"),
+            pos: LandmarkPos::Point(
+                truth[v as usize]
+                    + V3::new(g.sample(&mut rng), g.sample(&mut rng), g.sample(&mut rng)),
+            ),
+        })
+        .collect();
+    Case {
+        template: template.clone(),
+        scan,
+        template_landmarks,
+        scan_landmarks,
+        truth: Some(truth),
+        in_hole,
+    }
+}
+
+/// One case of the development table: a name, the case, and whether the conformation
+/// gets landmarks.
+pub struct DevCase {
+    pub name: String,
+    pub case: Case,
+    pub landmarks: bool,
+}
+
+/// The development table: every mesh posed and scanned, with landmarks and without
+/// (turned 20 degrees, shifted 5%), plus a harder posture of the koala. The cat is made
+/// uneven (edge CV >= 0.3) and opened by three holes, as an outside template is.
+pub fn standard_cases(names: &[&str]) -> Result<Vec<DevCase>, String> {
+    let mut out = Vec::new();
+    for m in MESHES {
+        if !names.is_empty() && !names.contains(&m.name) {
+            continue;
+        }
+        let mut mesh = load(m.name)?;
+        if m.name == "cat" {
+            mesh = with_holes(&uneven(&mesh, 0.5, 11), 3, 0.03, 12).0;
+        }
+        let posed = DevCaseSpec::default();
+        let turned = DevCaseSpec {
+            turn: 20.0,
+            shift: 0.05,
+            seed: 5,
+            pose: PoseSettings {
+                seed: 2,
+                ..posed.pose
+            },
+            ..posed
+        };
+        out.push(DevCase {
+            name: format!("{} posed, landmarks", m.name),
+            case: case(&mesh, &posed),
+            landmarks: true,
+        });
+        out.push(DevCase {
+            name: format!("{} turned, no landmarks", m.name),
+            case: case(&mesh, &turned),
+            landmarks: false,
+        });
+        if m.name == "koala" {
+            let hard = DevCaseSpec {
+                pose: PoseSettings {
+                    limb_degrees: (30.0, 45.0),
+                    bend: 20.0,
+                    twist: 15.0,
+                    seed: 4,
+                    ..posed.pose
+                },
+                ..posed
+            };
+            out.push(DevCase {
+                name: format!("{} hard posture, landmarks", m.name),
+                case: case(&mesh, &hard),
+                landmarks: true,
+            });
+        }
+    }
+    Ok(out)
+}
+
+/// The paper's own pig study set-up: one capture's reconstruction, triangulated per pod
+/// (`Reconstruction::run` with `as_mesh`: several components, holes, uneven triangles),
+/// is the template; the scan is another capture of the same animal in another posture.
+/// The subject is the generic pig posed both ways, so each template vertex's true place
+/// is known: the point of the first posture's surface it was reconstructed at, carried
+/// to the second posture (same triangle, same barycentric coordinates). Landmarks are
+/// 12 template vertices spread by farthest-point sampling.
+pub fn captured_template_case(
+    station: &mut crate::stereo::rig::Reconstruction,
+    rig: &crate::stereo::rig::RigFile,
+    seed: u64,
+) -> Result<Case, String> {
+    use crate::template::{self, Kind};
+    use parry3d_f64::math::Vector as PVec;
+    use parry3d_f64::query::PointQueryWithLocation;
+    use parry3d_f64::shape::TriMesh;
+    let fig = template::build(Kind::Pig, 20_000);
+    let posed = |p: &str| -> Result<Mesh, String> {
+        let names: Vec<&str> = template::pose_parameters(Kind::Pig)
+            .iter()
+            .map(|p| p.0)
+            .collect();
+        let params = template::parse_parameters(p, &names, "pose")?;
+        template::subject(
+            &fig,
+            Kind::Pig,
+            &std::collections::BTreeMap::new(),
+            &template::pose(Kind::Pig, &params),
+        )
+    };
+    let a = posed("nod=8,leg_fl=12,tail=-10")?;
+    let b = posed("swing=14,nod=-12,twist=6,leg_hl=-18,leg_fr=15,tail=25")?;
+    let mut capture = |subject: &Mesh, as_mesh: bool, seed: u64| -> Result<Mesh, String> {
+        let rendered = super::rig::render_rig(rig, subject, 2.0, seed);
+        let pairs: Vec<(Vec<u8>, Vec<u8>)> = rendered
+            .chunks(2)
+            .map(|p| (p[0].pixels.clone(), p[1].pixels.clone()))
+            .collect();
+        station
+            .run(&pairs, as_mesh)
+            .map(|(m, _)| m)
+            .map_err(|e| e.to_string())
+    };
+    let tpl = capture(&a, true, seed)?;
+    let scan = capture(&b, false, seed + 1)?;
+    // each template vertex's place on the first posture, carried to the second
+    let verts: Vec<PVec> = a
+        .vertices
+        .iter()
+        .map(|p| PVec::new(p.x, p.y, p.z))
+        .collect();
+    let tm = TriMesh::new(verts, a.triangles.clone()).map_err(|e| format!("{e:?}"))?;
+    let truth: Vec<V3> = tpl
+        .vertices
+        .iter()
+        .map(|p| {
+            let (_, (t, loc)) =
+                tm.project_local_point_and_get_location(PVec::new(p.x, p.y, p.z), false);
+            let bc = loc.barycentric_coordinates().unwrap_or([1.0 / 3.0; 3]);
+            let tri = b.triangles[t as usize];
+            (0..3).map(|k| b.vertices[tri[k] as usize] * bc[k]).sum()
+        })
+        .collect();
+    // a vertex is in a hole where the second capture saw nothing near its true place
+    let surface = crate::conform::correspond::ScanSurface::new(&scan).map_err(|e| e.to_string())?;
+    let gap = 5.0 * surface.spacing;
+    let in_hole: Vec<bool> = truth
+        .iter()
+        .map(|p| surface.nearest_point(p).1 > gap)
+        .collect();
+    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x1a4d);
+    let diag = tpl.diagonal();
+    let g = Normal::new(0.0, 0.002 * diag).expect("valid sigma");
+    let picked = farthest_points(&tpl.vertices, 12);
+    let template_landmarks = picked
+        .iter()
+        .enumerate()
+        .map(|(k, &v)| Landmark {
+            name: format!("x{k}"),
+            pos: LandmarkPos::Vertex(v),
+        })
+        .collect();
+    let scan_landmarks = picked
+        .iter()
+        .enumerate()
+        .map(|(k, &v)| Landmark {
+            name: format!("x{k}"),
+            pos: LandmarkPos::Point(
+                truth[v as usize]
+                    + V3::new(g.sample(&mut rng), g.sample(&mut rng), g.sample(&mut rng)),
+            ),
+        })
+        .collect();
+    Ok(Case {
+        template: tpl,
+        scan,
+        template_landmarks,
+        scan_landmarks,
+        truth: Some(truth),
+        in_hole,
+    })
+}
+
+/// `count` points spread by Euclidean farthest-point sampling, from the point farthest
+/// from the centroid.
+pub fn farthest_points(p: &[V3], count: usize) -> Vec<u32> {
+    if p.is_empty() {
+        return Vec::new();
+    }
+    let c = p.iter().sum::<V3>() / p.len() as f64;
+    let mut d: Vec<f64> = p.iter().map(|q| (q - c).norm()).collect();
+    let mut out = Vec::new();
+    for _ in 0..count.min(p.len()) {
+        let (i, _) = d
+            .iter()
+            .enumerate()
+            .max_by(|a, b| a.1.total_cmp(b.1))
+            .expect("non-empty");
+        out.push(i as u32);
+        for (dq, q) in d.iter_mut().zip(p) {
+            *dq = dq.min((q - p[i]).norm());
+        }
+    }
+    out
+}
+
+/// The captured-scan-as-template cases (with landmarks and without), on the example rig.
+pub fn captured_cases() -> Result<Vec<DevCase>, String> {
+    let rig_path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/rig.example.toml");
+    let rig = crate::stereo::rig::RigFile::load(&rig_path).map_err(|e| e.to_string())?;
+    let mut station =
+        crate::stereo::rig::Reconstruction::load(&rig_path, None).map_err(|e| e.to_string())?;
+    let case = captured_template_case(&mut station, &rig, 21)?;
+    let again = Case {
+        template: case.template.clone(),
+        scan: case.scan.clone(),
+        template_landmarks: case.template_landmarks.clone(),
+        scan_landmarks: case.scan_landmarks.clone(),
+        truth: case.truth.clone(),
+        in_hole: case.in_hole.clone(),
+    };
+    Ok(vec![
+        DevCase {
+            name: "captured pig as template, landmarks".into(),
+            case,
+            landmarks: true,
+        },
+        DevCase {
+            name: "captured pig as template, none".into(),
+            case: again,
+            landmarks: false,
+        },
+    ])
+}

@@ -1,0 +1,237 @@
+//! Known-answer posing of any mesh with its vertex order kept, so that meshes conformd did
+//! not make get posed truths. Limbs are found as geodesic extremities (farthest-point
+//! sampling from the body's centre); each limb turns about a joint at the centre of its
+//! cross-section part-way along it, with a weight that falls off along the surface; then
+//! the whole is bent and twisted about its long axis and scaled.
+
+use crate::mesh::{Mesh, V3};
+use nalgebra::{Rotation3, Unit};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use std::cmp::Ordering;
+use std::collections::BinaryHeap;
+
+/// Geodesic distances along the mesh's edges from `source` (Dijkstra); vertices of other
+/// components stay at infinity.
+pub fn edge_distances(mesh: &Mesh, neighbours: &[Vec<u32>], source: u32) -> Vec<f64> {
+    #[derive(PartialEq)]
+    struct Item(f64, u32);
+    impl Eq for Item {}
+    impl Ord for Item {
+        fn cmp(&self, o: &Self) -> Ordering {
+            o.0.total_cmp(&self.0)
+        }
+    }
+    impl PartialOrd for Item {
+        fn partial_cmp(&self, o: &Self) -> Option<Ordering> {
+            Some(self.cmp(o))
+        }
+    }
+    let mut d = vec![f64::INFINITY; mesh.vertices.len()];
+    let mut heap = BinaryHeap::new();
+    d[source as usize] = 0.0;
+    heap.push(Item(0.0, source));
+    while let Some(Item(dv, v)) = heap.pop() {
+        if dv > d[v as usize] {
+            continue;
+        }
+        for &w in &neighbours[v as usize] {
+            let nd = dv + (mesh.vertices[v as usize] - mesh.vertices[w as usize]).norm();
+            if nd < d[w as usize] {
+                d[w as usize] = nd;
+                heap.push(Item(nd, w));
+            }
+        }
+    }
+    d
+}
+
+/// The body's centre vertex and its extremities: farthest-point samples over geodesic
+/// distance, from the vertex nearest the centroid. The first samples are the tips of
+/// legs, tail, head and ears.
+pub struct Extremities {
+    pub centre: u32,
+    /// farthest-point samples in order, with the geodesic distance from the centre
+    pub samples: Vec<(u32, f64)>,
+    pub from_centre: Vec<f64>,
+}
+
+pub fn extremities(mesh: &Mesh, neighbours: &[Vec<u32>], count: usize) -> Extremities {
+    let c = mesh.centroid();
+    let centre = (0..mesh.vertices.len())
+        .min_by(|&a, &b| {
+            (mesh.vertices[a] - c)
+                .norm()
+                .total_cmp(&(mesh.vertices[b] - c).norm())
+        })
+        .unwrap_or(0) as u32;
+    let from_centre = edge_distances(mesh, neighbours, centre);
+    let mut nearest: Vec<f64> = from_centre.clone();
+    let mut samples = Vec::new();
+    for _ in 0..count {
+        let Some(v) = (0..nearest.len())
+            .filter(|&i| nearest[i].is_finite())
+            .max_by(|&a, &b| nearest[a].total_cmp(&nearest[b]))
+        else {
+            break;
+        };
+        if nearest[v] <= 0.0 {
+            break;
+        }
+        samples.push((v as u32, from_centre[v]));
+        let d = edge_distances(mesh, neighbours, v as u32);
+        for (n, x) in nearest.iter_mut().zip(d) {
+            *n = n.min(x);
+        }
+    }
+    Extremities {
+        centre,
+        samples,
+        from_centre,
+    }
+}
+
+/// How hard to pose.
+#[derive(Debug, Clone, Copy)]
+pub struct PoseSettings {
+    /// extremities tried as limbs (the first farthest-point samples; the thin ones turn)
+    pub limbs: usize,
+    /// limb turn, degrees, drawn between these (either sign)
+    pub limb_degrees: (f64, f64),
+    /// bend and twist of the whole about its long axis, degrees end to end
+    pub bend: f64,
+    pub twist: f64,
+    pub scale: f64,
+    pub seed: u64,
+}
+
+impl Default for PoseSettings {
+    fn default() -> Self {
+        PoseSettings {
+            limbs: 8,
+            limb_degrees: (15.0, 30.0),
+            bend: 12.0,
+            twist: 10.0,
+            scale: 1.05,
+            seed: 1,
+        }
+    }
+}
+
+/// The mesh's vertices in a new posture (see the module comment). Deterministic for a
+/// seed.
+pub fn pose(mesh: &Mesh, neighbours: &[Vec<u32>], ext: &Extremities, s: &PoseSettings) -> Vec<V3> {
+    let mut rng = ChaCha8Rng::seed_from_u64(s.seed);
+    let mut x = mesh.vertices.clone();
+    for &(tip, length) in ext.samples.iter().take(s.limbs) {
+        let from_tip = edge_distances(mesh, neighbours, tip);
+        // the limb: everything within 45% of the tip-to-centre path of the tip, blended
+        // over a band of 40% of it (narrower bands fold the inside of the bend)
+        let (r, h) = (0.45 * length, 0.2 * length);
+        let ring: Vec<usize> = (0..x.len())
+            .filter(|&i| (from_tip[i] - r).abs() < 0.5 * h)
+            .collect();
+        if ring.is_empty() {
+            continue;
+        }
+        let joint = ring.iter().map(|&i| x[i]).sum::<V3>() / ring.len() as f64;
+        // a limb is thin where it is cut: a wide ring is the body itself (a rump or a
+        // back found as an extremity), which no joint turns
+        let radius = ring.iter().map(|&i| (x[i] - joint).norm()).sum::<f64>() / ring.len() as f64;
+        if radius > 0.35 * r {
+            continue;
+        }
+        let along = x[tip as usize] - joint;
+        if along.norm() == 0.0 {
+            continue;
+        }
+        let along = along.normalize();
+        let side = along.cross(&random_unit(&mut rng)).normalize();
+        let deg = rng.random_range(s.limb_degrees.0..=s.limb_degrees.1)
+            * if rng.random::<bool>() { 1.0 } else { -1.0 };
+        let axis = Unit::new_normalize(side);
+        for i in 0..x.len() {
+            let w = smoothstep((r + h - from_tip[i]) / (2.0 * h));
+            if w > 0.0 {
+                let rot = Rotation3::from_axis_angle(&axis, (deg * w).to_radians());
+                x[i] = joint + rot * (x[i] - joint);
+            }
+        }
+    }
+    bend_twist(&mut x, s);
+    x
+}
+
+/// Bends the whole about an axis across its long axis and twists it about the long axis,
+/// both in proportion to the position along it; then scales about the centroid.
+fn bend_twist(x: &mut [V3], s: &PoseSettings) {
+    let c = x.iter().sum::<V3>() / x.len() as f64;
+    let cov = x.iter().fold(nalgebra::Matrix3::zeros(), |m, p| {
+        let d = p - c;
+        m + d * d.transpose()
+    });
+    let eig = cov.symmetric_eigen();
+    let mut order = [0usize, 1, 2];
+    order.sort_by(|&a, &b| eig.eigenvalues[b].total_cmp(&eig.eigenvalues[a]));
+    let long = eig.eigenvectors.column(order[0]).into_owned();
+    let across = eig.eigenvectors.column(order[2]).into_owned();
+    let half = x
+        .iter()
+        .map(|p| (p - c).dot(&long).abs())
+        .fold(0.0, f64::max)
+        .max(1e-12);
+    let (bend_axis, twist_axis) = (Unit::new_normalize(across), Unit::new_normalize(long));
+    for p in x.iter_mut() {
+        let t = (*p - c).dot(&long) / half;
+        let r = Rotation3::from_axis_angle(&bend_axis, (0.5 * s.bend * t).to_radians())
+            * Rotation3::from_axis_angle(&twist_axis, (0.5 * s.twist * t).to_radians());
+        *p = c + (r * (*p - c)) * s.scale;
+    }
+}
+
+fn smoothstep(t: f64) -> f64 {
+    let t = t.clamp(0.0, 1.0);
+    t * t * (3.0 - 2.0 * t)
+}
+
+fn random_unit(rng: &mut ChaCha8Rng) -> V3 {
+    loop {
+        let v = V3::new(
+            rng.random_range(-1.0..1.0),
+            rng.random_range(-1.0..1.0),
+            rng.random_range(-1.0..1.0),
+        );
+        let n = v.norm();
+        if n > 0.1 && n <= 1.0 {
+            return v / n;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mesh::topology;
+
+    #[test]
+    fn a_box_keeps_its_triangles_unfolded_and_moves() {
+        let m = crate::synth::tessellated_box(V3::new(4.0, 1.0, 1.0), 8);
+        let nb = topology::vertex_neighbours(m.vertices.len(), &m.triangles);
+        let ext = extremities(&m, &nb, 4);
+        assert_eq!(ext.samples.len(), 4);
+        // the first extremity is a far end of the long box
+        let tip = m.vertices[ext.samples[0].0 as usize];
+        assert!(tip.x.abs() > 1.5, "{tip:?}");
+        let posed = pose(&m, &nb, &ext, &PoseSettings::default());
+        let moved = posed
+            .iter()
+            .zip(&m.vertices)
+            .filter(|(a, b)| (*a - *b).norm() > 1e-3)
+            .count();
+        assert!(moved > m.vertices.len() / 2);
+        assert_eq!(
+            crate::mesh::quality::flipped_against(&posed, &m.vertices, &m.triangles),
+            0
+        );
+    }
+}
