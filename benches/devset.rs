@@ -144,6 +144,13 @@ fn main() {
                 * conformd::conform::correspond::ScanSurface::new(&case.scan)
                     .map_or(f64::NAN, |s| s.spacing / s.diagonal)
         );
+        let own = quality::folded_triangles(&case.template);
+        if r.report.folded_triangles > 0 || own > 0 {
+            println!(
+                "  (the result folds {} triangles over their neighbours; the template itself {own})",
+                r.report.folded_triangles
+            );
+        }
         if folds > 0 {
             println!("  (the truth folds {folds} triangles of the template)");
         }

@@ -9,8 +9,28 @@ use std::path::Path;
 use std::process::Command;
 use std::time::{Duration, Instant};
 
-/// Runs the binary in `dir`; asserts it failed within 10 s with every word in stderr.
+/// Every file and folder under `dir`.
+fn tree(dir: &Path) -> Vec<std::path::PathBuf> {
+    fn walk(p: &Path, out: &mut Vec<std::path::PathBuf>) {
+        if let Ok(rd) = std::fs::read_dir(p) {
+            for e in rd.flatten() {
+                out.push(e.path());
+                if e.file_type().is_ok_and(|t| t.is_dir()) {
+                    walk(&e.path(), out);
+                }
+            }
+        }
+    }
+    let mut out = Vec::new();
+    walk(dir, &mut out);
+    out.sort();
+    out
+}
+
+/// Runs the binary in `dir`; asserts it failed within 10 s with every word in stderr,
+/// without a panic, and created no file or folder in `dir`.
 fn refused(dir: &Path, args: &[&str], words: &[&str]) -> String {
+    let before = tree(dir);
     let t = Instant::now();
     let out = Command::new(env!("CARGO_BIN_EXE_conformd"))
         .args(args)
@@ -32,6 +52,9 @@ fn refused(dir: &Path, args: &[&str], words: &[&str]) -> String {
     for w in words {
         assert!(err.contains(w), "{args:?}: '{w}' not in: {err}");
     }
+    let after = tree(dir);
+    let new: Vec<_> = after.iter().filter(|p| !before.contains(p)).collect();
+    assert!(new.is_empty(), "{args:?} left {new:?}");
     err
 }
 
@@ -278,4 +301,141 @@ fn calibration_images_without_a_board_are_refused_quickly() {
         &["board"],
     );
     assert!(!d.join("pod.yml").exists());
+}
+
+#[test]
+fn a_calibration_with_a_zero_focal_length_is_blamed_on_the_file() {
+    let rig_path = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/rig.example.toml");
+    let rig = conformd::stereo::rig::RigFile::load(&rig_path).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let calib = dir.path().join("calibration");
+    std::fs::create_dir(&calib).unwrap();
+    for pod in rig.pods() {
+        std::fs::write(
+            calib.join(format!("{}.yml", pod.id)),
+            pod.opencv_yaml_of(Some(&rig.name)),
+        )
+        .unwrap();
+    }
+    let first = &rig.pods()[0].id;
+    let file = calib.join(format!("{first}.yml"));
+    let text = std::fs::read_to_string(&file).unwrap();
+    // M1's first value is fx
+    let m1 = text.find("M1").unwrap();
+    let start = m1 + text[m1..].find('[').unwrap() + 1;
+    let end = start + text[start..].find(',').unwrap();
+    let broken = format!("{} 0.{}", &text[..start], &text[end..]);
+    std::fs::write(&file, broken).unwrap();
+    let err = match conformd::stereo::rig::Reconstruction::load(&rig_path, Some(&calib)) {
+        Err(e) => e.to_string(),
+        Ok(_) => panic!("a zero focal length was accepted"),
+    };
+    assert!(
+        err.contains(&format!("{first}.yml")) && err.contains("focal length must be positive"),
+        "{err}"
+    );
+    // and through the command line, before any image is read
+    refused(
+        dir.path(),
+        &[
+            "reconstruct",
+            "no-such-set",
+            "--rig",
+            rig_path.to_str().unwrap(),
+            "--calibration",
+            "calibration",
+            "--out",
+            "scan.ply",
+        ],
+        &[&format!("{first}.yml"), "focal length"],
+    );
+    assert!(!dir.path().join("scan.ply").exists());
+}
+
+#[test]
+fn names_that_would_escape_their_folder_are_refused_before_anything_is_written() {
+    // the command's folder inside a folder of its own, so that a write beside it (an id
+    // climbing out with `..`) shows too
+    let outer = tempfile::tempdir().unwrap();
+    let d = outer.path().join("work");
+    std::fs::create_dir(&d).unwrap();
+    let rig = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("config/rig.example.toml"),
+    )
+    .unwrap();
+    // a pod id that climbs out of --out
+    std::fs::write(
+        d.join("rig.toml"),
+        rig.replacen("id = \"pod1\"", "id = \"../../x\"", 1),
+    )
+    .unwrap();
+    refused(
+        &d,
+        &[
+            "simulate",
+            "--rig",
+            "rig.toml",
+            "--subject",
+            "pig",
+            "--captures",
+            "1",
+            "--out",
+            "sim",
+        ],
+        &["rig.toml", "../../x"],
+    );
+    // two pods of one id would overwrite each other's images
+    std::fs::write(
+        d.join("rig.toml"),
+        rig.replacen("id = \"pod2\"", "id = \"pod1\"", 1),
+    )
+    .unwrap();
+    refused(
+        &d,
+        &[
+            "simulate",
+            "--rig",
+            "rig.toml",
+            "--subject",
+            "pig",
+            "--captures",
+            "1",
+            "--out",
+            "sim",
+        ],
+        &["pod1"],
+    );
+    std::fs::remove_file(d.join("rig.toml")).unwrap();
+    // a station whose camera id climbs out of captures/
+    std::fs::write(
+        d.join("station.toml"),
+        "[station]\nname = \"s1\"\ndata = \"root\"\n[[cameras]]\nid = \"../x\"\npod = \"pod1\"\nside = \"left\"\ndevice = \"/dev/video0\"\n",
+    )
+    .unwrap();
+    refused(&d, &["check", "station.toml"], &["station.toml", "../x"]);
+    refused(
+        &d,
+        &["capture", "--config", "station.toml"],
+        &["station.toml", "../x"],
+    );
+    std::fs::remove_file(d.join("station.toml")).unwrap();
+    // a station file that is not there (a manifest naming a file outside its set:
+    // tests/pipeline.rs)
+    refused(
+        &d,
+        &[
+            "process",
+            "no-such-set",
+            "--config",
+            "no-station.toml",
+            "--out",
+            "results",
+        ],
+        &["no-station.toml"],
+    );
+    let beside: Vec<_> = std::fs::read_dir(outer.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
+    assert_eq!(beside, ["work"], "written beside the command's folder");
 }

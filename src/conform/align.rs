@@ -43,7 +43,17 @@ pub struct AlignReport {
     /// the same for the runner-up: close figures mean the choice was ambiguous
     pub runner_up_residual: Option<f64>,
     pub scale: f64,
+    /// hypotheses carried through the whole elastic fit (more than one when the
+    /// residuals could not tell them apart), and which of them was kept (0 = the best
+    /// by residual)
+    pub fitted: usize,
+    pub kept: usize,
 }
+
+/// Residual ratio under which the runner-up alignment is fitted too: near-symmetric
+/// subjects (a pig seen from above, a body in a T pose) leave the rigid residuals of a
+/// turned-round template close, and only the elastic fit's distortion tells them apart.
+pub const AMBIGUOUS_RESIDUAL_RATIO: f64 = 1.25;
 
 fn principal_frame(p: &[V3]) -> (V3, Matrix3<f64>, f64) {
     let c = p.iter().sum::<V3>() / p.len() as f64;
@@ -66,12 +76,14 @@ fn principal_frame(p: &[V3]) -> (V3, Matrix3<f64>, f64) {
     (c, m, e.eigenvalues.sum().max(0.0).sqrt())
 }
 
-/// Finds the similarity taking the template (`template` positions) onto the scan.
+/// Finds the similarity taking the template (`template` positions) onto the scan; with
+/// it, the runner-up when its residual is within [`AMBIGUOUS_RESIDUAL_RATIO`] of the
+/// best (both refined), for the caller to fit both.
 pub fn auto_align(
     template: &[V3],
     scan: &ScanSurface,
     opts: &AlignOptions,
-) -> (Similarity, AlignReport) {
+) -> (Similarity, Option<Similarity>, AlignReport) {
     let subsample = |k: usize| -> Vec<V3> {
         let step = (scan.points.len() / k).max(1);
         scan.points.iter().step_by(step).copied().collect()
@@ -122,14 +134,23 @@ pub fn auto_align(
         );
     }
     results.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let ambiguous = results
+        .get(1)
+        .is_some_and(|r| r.0 <= results[0].0 * AMBIGUOUS_RESIDUAL_RATIO);
     results[0] = icp(&tree, template, &fine, results[0].1, opts, scan.diagonal);
+    let runner_up = ambiguous.then(|| {
+        results[1] = icp(&tree, template, &fine, results[1].1, opts, scan.diagonal);
+        results[1].1
+    });
     let report = AlignReport {
         candidates_tried: results.len(),
         residual: results[0].0,
         runner_up_residual: results.get(1).map(|r| r.0),
         scale: results[0].1.scale,
+        fitted: 1,
+        kept: 0,
     };
-    (results[0].1, report)
+    (results[0].1, runner_up, report)
 }
 
 /// Trimmed similarity ICP from scan samples to template vertices (scan to template, since

@@ -639,23 +639,58 @@ pub fn conform_cancellable(
         Some((tl, sl)) => Some(pair_landmarks(tl, sl, template, scan)?),
         None => None,
     };
-    let (mut x, global_sim, global_report) =
-        global_mapping(template, &surface, pairs.as_ref(), opts)?;
+    let (hypotheses, mut global_report) = global_mapping(template, &surface, pairs.as_ref(), opts)?;
     times.global = t0.elapsed().as_secs_f64();
 
-    // 2-4. The elastic fit: coarse stage, then the iterations.
-    let mut fit = fit::Fit::new(template, &x, &global_sim, pairs.as_ref(), opts);
-    if cancelled() {
-        return Err(ConformError::Cancelled);
+    // 2-4. The elastic fit: coarse stage, then the iterations; for each alignment
+    // hypothesis the residuals could not tell apart, kept by the fit's distortion and
+    // distance to the scan (a template turned round fits with torn, stretched springs).
+    let fitted = hypotheses.len();
+    let mut best: Option<FittedHypothesis> = None;
+    for (k, (x0, sim)) in hypotheses.into_iter().enumerate() {
+        let mut x = x0;
+        let mut fit = fit::Fit::new(template, &x, &sim, pairs.as_ref(), opts);
+        if cancelled() {
+            return Err(ConformError::Cancelled);
+        }
+        times.coarse += fit.coarse(&mut x, &surface, pairs.is_some(), opts);
+        if cancelled() {
+            return Err(ConformError::Cancelled);
+        }
+        let (reports, converged) =
+            fit.iterate(&mut x, &surface, opts, &mut times, progress, cancel);
+        if cancelled() {
+            return Err(ConformError::Cancelled);
+        }
+        let score = if fitted > 1 {
+            let (m, _) = match_all(&surface, &x, &template.triangles, &fit.limits);
+            let distance = MatchSummary::of(&m).mean_distance / fit.diag;
+            fit.baseline.measure(&x).edge_length.std + 10.0 * distance
+        } else {
+            0.0
+        };
+        if best.as_ref().is_none_or(|b| score < b.score) {
+            best = Some(FittedHypothesis {
+                score,
+                x,
+                fit,
+                reports,
+                converged,
+                index: k,
+            });
+        }
     }
-    times.coarse = fit.coarse(&mut x, &surface, pairs.is_some(), opts);
-    if cancelled() {
-        return Err(ConformError::Cancelled);
-    }
-    let (mut reports, converged) =
-        fit.iterate(&mut x, &surface, opts, &mut times, progress, cancel);
-    if cancelled() {
-        return Err(ConformError::Cancelled);
+    let FittedHypothesis {
+        x,
+        fit,
+        mut reports,
+        converged,
+        index: kept,
+        ..
+    } = best.expect("at least one hypothesis");
+    if let GlobalReport::Automatic(rep) = &mut global_report {
+        rep.fitted = fitted;
+        rep.kept = kept;
     }
     let diag = fit.diag;
 
@@ -714,7 +749,7 @@ fn global_mapping(
     surface: &ScanSurface,
     pairs: Option<&Pairs>,
     opts: &ConformOptions,
-) -> Result<(Vec<V3>, crate::mesh::transform::Similarity, GlobalReport), ConformError> {
+) -> Result<(Vec<Hypothesis>, GlobalReport), ConformError> {
     Ok(match pairs {
         Some(p) => {
             let src: Vec<V3> = p
@@ -726,8 +761,7 @@ fn global_mapping(
             let mapped: Vec<V3> = template.vertices.par_iter().map(|v| map.apply(v)).collect();
             let sim = fit_similarity(&template.vertices, &mapped, None, true);
             (
-                mapped,
-                sim,
+                vec![(mapped, sim)],
                 GlobalReport::LandmarkRbf {
                     pairs: p.names.clone(),
                     unpaired: p.unpaired.clone(),
@@ -735,15 +769,32 @@ fn global_mapping(
             )
         }
         None => {
-            let (sim, rep) = align::auto_align(&template.vertices, surface, &opts.align);
-            (
-                template.vertices.iter().map(|v| sim.apply(v)).collect(),
-                sim,
-                GlobalReport::Automatic(rep),
-            )
+            let (sim, runner_up, rep) = align::auto_align(&template.vertices, surface, &opts.align);
+            let placed = |s: &crate::mesh::transform::Similarity| -> Hypothesis {
+                (template.vertices.iter().map(|v| s.apply(v)).collect(), *s)
+            };
+            let mut h = vec![placed(&sim)];
+            // the paper's method has no distortion-aware springs to judge by
+            if let (Some(r), Method::Default) = (runner_up, opts.method) {
+                h.push(placed(&r));
+            }
+            (h, GlobalReport::Automatic(rep))
         }
     })
 }
+
+/// One hypothesis carried through the elastic fit, with its score (lower is better).
+struct FittedHypothesis<'a> {
+    score: f64,
+    x: Vec<V3>,
+    fit: fit::Fit<'a>,
+    reports: Vec<IterationReport>,
+    converged: bool,
+    index: usize,
+}
+
+/// A starting placement of the template and the similarity behind it.
+type Hypothesis = (Vec<V3>, crate::mesh::transform::Similarity);
 
 /// Every vertex's match (None: missing data), and the vertex normals used.
 fn match_all(

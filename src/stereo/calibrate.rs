@@ -368,9 +368,52 @@ pub fn read_yaml(
             r: nalgebra::Matrix3::from_row_slice(mats[4].data_typed::<f64>()?),
             t: V3::new(t[0], t[1], t[2]),
         };
+        if let Err(why) = check_pod(&pod) {
+            return Ok(Err(format!("{name}: {why}")));
+        }
         Ok(Ok((pod, origin)))
     };
     run().map_err(|e| format!("{name}: OpenCV: {e}"))?
+}
+
+/// A calibration that cannot describe two cameras is refused where it is read, naming
+/// the value: otherwise a zero focal length or a broken rotation shows up much later as
+/// "the disparity map is empty" and is blamed on the images.
+fn check_pod(pod: &Pod) -> Result<(), String> {
+    for (side, k) in [("M1 (left)", &pod.left), ("M2 (right)", &pod.right)] {
+        let values = [k.fx, k.fy, k.cx, k.cy];
+        if !values.iter().chain(&k.dist).all(|v| v.is_finite()) {
+            return Err(format!(
+                "{side} or its distortion holds a value that is not a number"
+            ));
+        }
+        if !(k.fx > 0.0 && k.fy > 0.0) {
+            return Err(format!(
+                "{side}: the focal length must be positive, got fx {} fy {}",
+                k.fx, k.fy
+            ));
+        }
+        if !(0.0..=k.width as f64).contains(&k.cx) || !(0.0..=k.height as f64).contains(&k.cy) {
+            return Err(format!(
+                "{side}: the principal point ({}, {}) lies outside the {} x {} image",
+                k.cx, k.cy, k.width, k.height
+            ));
+        }
+    }
+    if !pod.r.iter().chain(pod.t.iter()).all(|v| v.is_finite()) {
+        return Err("R or T holds a value that is not a number".into());
+    }
+    let ortho = (pod.r.transpose() * pod.r - nalgebra::Matrix3::identity()).norm();
+    if ortho > 1e-3 || pod.r.determinant() < 0.0 {
+        return Err(format!(
+            "R is not a rotation (|R^T R - I| = {ortho:.2e}, det {:.3})",
+            pod.r.determinant()
+        ));
+    }
+    if !(pod.t.norm() > 0.0) {
+        return Err("T is zero: the two cameras of a pod need a baseline".into());
+    }
+    Ok(())
 }
 
 /// Where one camera sees a flat chessboard ([`board_pose`]).
