@@ -439,3 +439,38 @@ fn names_that_would_escape_their_folder_are_refused_before_anything_is_written()
         .collect();
     assert_eq!(beside, ["work"], "written beside the command's folder");
 }
+
+#[test]
+fn simulate_on_a_full_disk_leaves_nothing_behind() {
+    // a file-size limit (with SIGXFSZ ignored, writes fail with EFBIG) stands in for a
+    // disk that fills up in the middle of the images
+    let dir = tempfile::tempdir().unwrap();
+    let rig = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/rig.example.toml");
+    let t = Instant::now();
+    let out = Command::new("sh")
+        .arg("-c")
+        .arg(format!(
+            "trap '' XFSZ; ulimit -f 200; exec '{}' simulate --rig '{}' --subject pig --captures 2 --out sim",
+            env!("CARGO_BIN_EXE_conformd"),
+            rig.display()
+        ))
+        .current_dir(dir.path())
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "simulate succeeded on a full disk");
+    assert!(
+        err.contains("File too large") && err.contains(".png"),
+        "{err}"
+    );
+    assert!(
+        t.elapsed() < Duration::from_secs(10),
+        "took {:?}",
+        t.elapsed()
+    );
+    assert!(
+        tree(dir.path()).is_empty(),
+        "left behind: {:?}",
+        tree(dir.path())
+    );
+}

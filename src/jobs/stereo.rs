@@ -9,7 +9,8 @@ use std::path::{Path, PathBuf};
 /// Renders capture sets of a subject (a mesh file, or a generic `pig`/`body` posed with
 /// `pose`) seen by the rig's cameras, written as standard capture sets under `out`, each
 /// with the ground-truth mesh beside its images (`truth.ply`), and every pod's
-/// calibration as OpenCV YAML under `out/calibration/`.
+/// calibration as OpenCV YAML under `out/calibration/`. All or nothing: when any write
+/// fails (a full disk), what this call wrote is removed again.
 pub fn simulate(
     rig_path: &Path,
     subject: &str,
@@ -17,6 +18,39 @@ pub fn simulate(
     captures: usize,
     noise: f64,
     out: &Path,
+) -> Result<Vec<PathBuf>, JobError> {
+    let out_existed = out.exists();
+    let calib_existed = out.join("calibration").exists();
+    let mut written: Vec<PathBuf> = Vec::new();
+    let result = simulate_into(rig_path, subject, pose, captures, noise, out, &mut written);
+    if result.is_err() {
+        if !out_existed {
+            let _ = std::fs::remove_dir_all(out);
+        } else {
+            for p in written.iter().rev() {
+                let _ = if p.is_dir() {
+                    std::fs::remove_dir_all(p)
+                } else {
+                    std::fs::remove_file(p)
+                };
+            }
+            if !calib_existed {
+                let _ = std::fs::remove_dir(out.join("calibration"));
+            }
+        }
+    }
+    result
+}
+
+/// [`simulate`]'s work; records each file and set folder it wrote in `written`.
+fn simulate_into(
+    rig_path: &Path,
+    subject: &str,
+    pose: &str,
+    captures: usize,
+    noise: f64,
+    out: &Path,
+    written: &mut Vec<PathBuf>,
 ) -> Result<Vec<PathBuf>, JobError> {
     use crate::template as templates;
     let rig = crate::stereo::rig::RigFile::load(rig_path)?;
@@ -46,10 +80,13 @@ pub fn simulate(
     let calib = out.join("calibration");
     std::fs::create_dir_all(&calib).map_err(|e| io(&calib, e))?;
     for pod in rig.pods() {
-        write_atomic(
-            &calib.join(format!("{}.yml", pod.id)),
-            pod.opencv_yaml_of(Some(&rig.name)).as_bytes(),
-        )?;
+        let file = calib.join(format!("{}.yml", pod.id));
+        // a file this call replaces is the new calibration either way; only new ones go
+        let new = !file.exists();
+        write_atomic(&file, pod.opencv_yaml_of(Some(&rig.name)).as_bytes())?;
+        if new {
+            written.push(file);
+        }
     }
     let mut dirs = Vec::new();
     for n in 0..captures {
@@ -58,14 +95,9 @@ pub fn simulate(
             .map(|r| (r.pod, r.side, r.width, r.height, r.pixels))
             .collect();
         let truth = mesh::io::ply_bytes(&mesh, mesh::io::PlyEncoding::BinaryLittleEndian);
-        dirs.push(write_simulated_set(
-            out,
-            n,
-            &rig.name,
-            subject,
-            images,
-            &[("truth.ply", truth)],
-        )?);
+        let set = write_simulated_set(out, n, &rig.name, subject, images, &[("truth.ply", truth)])?;
+        written.push(set.clone());
+        dirs.push(set);
     }
     Ok(dirs)
 }
