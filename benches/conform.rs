@@ -75,28 +75,8 @@ fn bench(label: &str, case: &Case, landmarks: bool, repeats: usize, target: Opti
 /// The peer on the same case, in this run: exports it, runs the Python script, prints
 /// its figures and the ratio of its time to ours.
 fn peer(case: &Case, ours: f64) {
-    use conformd::mesh::io::write_mesh;
-    use conformd::mesh::landmarks::landmarks_text;
     let dir = tempfile::tempdir().expect("temp dir");
-    let d = dir.path().join("case_11k_landmarks");
-    std::fs::create_dir_all(&d).expect("folder");
-    let truth = case.truth.clone().expect("truth");
-    write_mesh(&d.join("template.obj"), &case.template).expect("write");
-    write_mesh(&d.join("scan.ply"), &case.scan).expect("write");
-    let t = conformd::mesh::Mesh::new(truth, case.template.triangles.clone());
-    write_mesh(&d.join("truth.obj"), &t).expect("write");
-    let holes: String = case
-        .in_hole
-        .iter()
-        .map(|h| if *h { "1\n" } else { "0\n" })
-        .collect();
-    std::fs::write(d.join("in_hole.txt"), holes).expect("write");
-    std::fs::write(
-        d.join("template.lm"),
-        landmarks_text(&case.template_landmarks),
-    )
-    .expect("write");
-    std::fs::write(d.join("scan.lm"), landmarks_text(&case.scan_landmarks)).expect("write");
+    devset::export(case, true, &dir.path().join("case_11k_landmarks")).expect("export");
     let script =
         std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("benches/peer/trimesh_sumner.py");
     match std::process::Command::new("python3")

@@ -7,7 +7,6 @@
 
 use conformd::conform::{ConformOptions, conform};
 use conformd::mesh::io::write_mesh;
-use conformd::mesh::landmarks::landmarks_text;
 use conformd::mesh::{Mesh, quality};
 use conformd::render::{self, Colouring, RenderOptions};
 use conformd::synth::cases::correspondence_error;
@@ -50,26 +49,7 @@ fn main() {
         let truth = case.truth.as_ref().expect("dev cases know the truth");
         if let Some(dir) = &export {
             let d = dir.join(c.name.replace([' ', ','], "_").replace("__", "_"));
-            std::fs::create_dir_all(&d).expect("export folder");
-            write_mesh(&d.join("template.obj"), &case.template).expect("write");
-            write_mesh(&d.join("scan.ply"), &case.scan).expect("write");
-            let t = Mesh::new(truth.clone(), case.template.triangles.clone());
-            write_mesh(&d.join("truth.obj"), &t).expect("write");
-            let holes: String = case
-                .in_hole
-                .iter()
-                .map(|h| if *h { "1\n" } else { "0\n" })
-                .collect();
-            std::fs::write(d.join("in_hole.txt"), holes).expect("write");
-            if c.landmarks {
-                std::fs::write(
-                    d.join("template.lm"),
-                    landmarks_text(&case.template_landmarks),
-                )
-                .expect("write");
-                std::fs::write(d.join("scan.lm"), landmarks_text(&case.scan_landmarks))
-                    .expect("write");
-            }
+            devset::export(case, c.landmarks, &d).expect("export");
         }
         let lm = c
             .landmarks

@@ -154,7 +154,6 @@ fn no_landmarks_finds_head_and_tail_whichever_way_the_subject_faces() {
     // the koala turned round (head where the tail was) and tipped: a rigid residual
     // alone can prefer the template the wrong way round on a near-symmetric body; the
     // elastic fit of every close hypothesis decides
-    use conformd::conform::GlobalReport;
     use conformd::synth::devset::DevCaseSpec;
     let koala = devset::load("koala").unwrap();
     for turn in [90.0, 180.0] {
@@ -165,32 +164,7 @@ fn no_landmarks_finds_head_and_tail_whichever_way_the_subject_faces() {
             ..Default::default()
         };
         let case = devset::case(&koala, &spec);
-        let r = conform(
-            &case.template,
-            &case.scan,
-            None,
-            &ConformOptions::default(),
-            &mut |_| {},
-        )
-        .unwrap();
-        let e = correspondence_error(
-            &r.mesh.vertices,
-            case.truth.as_ref().unwrap(),
-            &case.in_hole,
-            &case.template.triangles,
-        );
-        let GlobalReport::Automatic(a) = &r.report.global else {
-            panic!("no landmarks: automatic alignment")
-        };
-        eprintln!(
-            "turned {turn}: mean {:.3}% p95 {:.3}% (hypotheses fitted {}, kept {}, residuals {:.4} / {:?})",
-            e.mean * 100.0,
-            e.p95 * 100.0,
-            a.fitted,
-            a.kept,
-            a.residual,
-            a.runner_up_residual
-        );
+        let (e, _) = without_landmarks(&case, &format!("turned {turn}"));
         assert!(
             e.mean < 0.006 && e.p95 < 0.02,
             "turned {turn}: a part swapped"
@@ -202,7 +176,6 @@ fn no_landmarks_finds_head_and_tail_whichever_way_the_subject_faces() {
 fn a_near_symmetric_subject_gets_both_alignments_fitted() {
     // an ellipsoid with a small snout at one end: turned round, the rigid residuals
     // barely differ, so both placements go through the elastic fit
-    use conformd::conform::GlobalReport;
     use conformd::synth::devset::DevCaseSpec;
     let mut m = conformd::synth::icosphere(4);
     for v in &mut m.vertices {
@@ -217,6 +190,25 @@ fn a_near_symmetric_subject_gets_both_alignments_fitted() {
             ..Default::default()
         },
     );
+    let (e, a) = without_landmarks(&case, "near-symmetric");
+    assert_eq!(a.fitted, 2, "the close runner-up is fitted too");
+    assert!(
+        e.mean < 0.01,
+        "mean {:.3}%: the snout ended at the wrong end",
+        e.mean * 100.0
+    );
+}
+
+/// Conforms a case without landmarks by the defaults; its correspondence error and what
+/// the automatic alignment did, printed under `label`.
+fn without_landmarks(
+    case: &conformd::synth::cases::Case,
+    label: &str,
+) -> (
+    conformd::synth::cases::CorrespondenceError,
+    conformd::conform::align::AlignReport,
+) {
+    use conformd::conform::GlobalReport;
     let r = conform(
         &case.template,
         &case.scan,
@@ -231,11 +223,11 @@ fn a_near_symmetric_subject_gets_both_alignments_fitted() {
         &case.in_hole,
         &case.template.triangles,
     );
-    let GlobalReport::Automatic(a) = &r.report.global else {
+    let GlobalReport::Automatic(a) = r.report.global else {
         panic!("no landmarks: automatic alignment")
     };
     eprintln!(
-        "near-symmetric: mean {:.3}% p95 {:.3}% (hypotheses fitted {}, kept {}, residuals {:.5} / {:?})",
+        "{label}: mean {:.3}% p95 {:.3}% (hypotheses fitted {}, kept {}, residuals {:.5} / {:?})",
         e.mean * 100.0,
         e.p95 * 100.0,
         a.fitted,
@@ -243,10 +235,5 @@ fn a_near_symmetric_subject_gets_both_alignments_fitted() {
         a.residual,
         a.runner_up_residual
     );
-    assert_eq!(a.fitted, 2, "the close runner-up is fitted too");
-    assert!(
-        e.mean < 0.01,
-        "mean {:.3}%: the snout ended at the wrong end",
-        e.mean * 100.0
-    );
+    (e, a)
 }

@@ -363,48 +363,27 @@ fn names_that_would_escape_their_folder_are_refused_before_anything_is_written()
         Path::new(env!("CARGO_MANIFEST_DIR")).join("config/rig.example.toml"),
     )
     .unwrap();
-    // a pod id that climbs out of --out
-    std::fs::write(
-        d.join("rig.toml"),
-        rig.replacen("id = \"pod1\"", "id = \"../../x\"", 1),
-    )
-    .unwrap();
-    refused(
-        &d,
-        &[
-            "simulate",
-            "--rig",
-            "rig.toml",
-            "--subject",
-            "pig",
-            "--captures",
-            "1",
-            "--out",
-            "sim",
-        ],
-        &["rig.toml", "../../x"],
-    );
-    // two pods of one id would overwrite each other's images
-    std::fs::write(
-        d.join("rig.toml"),
-        rig.replacen("id = \"pod2\"", "id = \"pod1\"", 1),
-    )
-    .unwrap();
-    refused(
-        &d,
-        &[
-            "simulate",
-            "--rig",
-            "rig.toml",
-            "--subject",
-            "pig",
-            "--captures",
-            "1",
-            "--out",
-            "sim",
-        ],
-        &["pod1"],
-    );
+    // a pod id that climbs out of --out; two pods of one id (each would overwrite the
+    // other's images)
+    for (from, to, word) in [("pod1", "../../x", "../../x"), ("pod2", "pod1", "pod1")] {
+        let edited = rig.replacen(&format!("id = \"{from}\""), &format!("id = \"{to}\""), 1);
+        std::fs::write(d.join("rig.toml"), edited).unwrap();
+        refused(
+            &d,
+            &[
+                "simulate",
+                "--rig",
+                "rig.toml",
+                "--subject",
+                "pig",
+                "--captures",
+                "1",
+                "--out",
+                "sim",
+            ],
+            &["rig.toml", word],
+        );
+    }
     std::fs::remove_file(d.join("rig.toml")).unwrap();
     // a station whose camera id climbs out of captures/
     std::fs::write(

@@ -249,32 +249,14 @@ pub fn case(template: &Mesh, spec: &DevCaseSpec) -> Case {
         spec.noise,
         spec.seed,
     );
-    let g = Normal::new(0.0, spec.landmark_noise * diag).expect("valid sigma");
     let picked: Vec<u32> = ext
         .samples
         .iter()
         .take(spec.landmarks)
         .map(|s| s.0)
         .collect();
-    let template_landmarks = picked
-        .iter()
-        .enumerate()
-        .map(|(k, &v)| Landmark {
-            name: format!("x{k}"),
-            pos: LandmarkPos::Vertex(v),
-        })
-        .collect();
-    let scan_landmarks = picked
-        .iter()
-        .enumerate()
-        .map(|(k, &v)| Landmark {
-            name: format!("x{k}"),
-            pos: LandmarkPos::Point(
-                truth[v as usize]
-                    + V3::new(g.sample(&mut rng), g.sample(&mut rng), g.sample(&mut rng)),
-            ),
-        })
-        .collect();
+    let (template_landmarks, scan_landmarks) =
+        landmark_pairs(&picked, &truth, spec.landmark_noise * diag, &mut rng);
     Case {
         template: template.clone(),
         scan,
@@ -283,6 +265,64 @@ pub fn case(template: &Mesh, spec: &DevCaseSpec) -> Case {
         truth: Some(truth),
         in_hole,
     }
+}
+
+/// Landmarks `x0, x1, ...` on the `picked` template vertices, and on the scan at their
+/// true places plus Gaussian noise of `sigma`.
+fn landmark_pairs(
+    picked: &[u32],
+    truth: &[V3],
+    sigma: f64,
+    rng: &mut ChaCha8Rng,
+) -> (Vec<Landmark>, Vec<Landmark>) {
+    let g = Normal::new(0.0, sigma).expect("valid sigma");
+    picked
+        .iter()
+        .enumerate()
+        .map(|(k, &v)| {
+            let noise = V3::new(g.sample(rng), g.sample(rng), g.sample(rng));
+            (
+                Landmark {
+                    name: format!("x{k}"),
+                    pos: LandmarkPos::Vertex(v),
+                },
+                Landmark {
+                    name: format!("x{k}"),
+                    pos: LandmarkPos::Point(truth[v as usize] + noise),
+                },
+            )
+        })
+        .unzip()
+}
+
+/// Writes a case for the peer script (`benches/peer/trimesh_sumner.py`): template,
+/// scan, truth, per-vertex hole flags and, when used, both landmark files.
+pub fn export(case: &Case, landmarks: bool, dir: &std::path::Path) -> Result<(), String> {
+    use crate::mesh::io::write_mesh;
+    use crate::mesh::landmarks::landmarks_text;
+    let err = |e: &dyn std::fmt::Display| e.to_string();
+    std::fs::create_dir_all(dir).map_err(|e| err(&e))?;
+    let truth = case.truth.clone().ok_or("the case has no truth")?;
+    write_mesh(&dir.join("template.obj"), &case.template).map_err(|e| err(&e))?;
+    write_mesh(&dir.join("scan.ply"), &case.scan).map_err(|e| err(&e))?;
+    let t = Mesh::new(truth, case.template.triangles.clone());
+    write_mesh(&dir.join("truth.obj"), &t).map_err(|e| err(&e))?;
+    let holes: String = case
+        .in_hole
+        .iter()
+        .map(|h| if *h { "1\n" } else { "0\n" })
+        .collect();
+    std::fs::write(dir.join("in_hole.txt"), holes).map_err(|e| err(&e))?;
+    if landmarks {
+        std::fs::write(
+            dir.join("template.lm"),
+            landmarks_text(&case.template_landmarks),
+        )
+        .map_err(|e| err(&e))?;
+        std::fs::write(dir.join("scan.lm"), landmarks_text(&case.scan_landmarks))
+            .map_err(|e| err(&e))?;
+    }
+    Ok(())
 }
 
 /// One case of the development table: a name, the case, and whether the conformation
@@ -420,27 +460,9 @@ pub fn captured_template_case(
         .collect();
     let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x1a4d);
     let diag = tpl.diagonal();
-    let g = Normal::new(0.0, 0.002 * diag).expect("valid sigma");
     let picked = farthest_points(&tpl.vertices, 12);
-    let template_landmarks = picked
-        .iter()
-        .enumerate()
-        .map(|(k, &v)| Landmark {
-            name: format!("x{k}"),
-            pos: LandmarkPos::Vertex(v),
-        })
-        .collect();
-    let scan_landmarks = picked
-        .iter()
-        .enumerate()
-        .map(|(k, &v)| Landmark {
-            name: format!("x{k}"),
-            pos: LandmarkPos::Point(
-                truth[v as usize]
-                    + V3::new(g.sample(&mut rng), g.sample(&mut rng), g.sample(&mut rng)),
-            ),
-        })
-        .collect();
+    let (template_landmarks, scan_landmarks) =
+        landmark_pairs(&picked, &truth, 0.002 * diag, &mut rng);
     Ok(Case {
         template: tpl,
         scan,
