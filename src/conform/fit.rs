@@ -177,7 +177,6 @@ impl<'a> Fit<'a> {
                 break;
             }
             let t_it = Instant::now();
-            let eps = relaxed.unwrap_or(opts.schedule(it, opts.epsilon_start, opts.epsilon_end));
             let limits = MatchLimits {
                 max_distance: opts.schedule(it, opts.max_distance_start, opts.max_distance)
                     * self.diag,
@@ -200,13 +199,10 @@ impl<'a> Fit<'a> {
                 && opts.relax_epsilon < opts.epsilon_end
                 && relaxed.is_none_or(|e| e > opts.relax_epsilon);
             let far = summary.mean_distance > opts.relax_distance * self.diag;
-            let eps = if can_relax && it >= opts.epsilon_steps && (relaxed.is_some() || far) {
-                let next = (relaxed.unwrap_or(opts.epsilon_end) * 0.5).max(opts.relax_epsilon);
-                relaxed = Some(next);
-                next
-            } else {
-                eps
-            };
+            if can_relax && it >= opts.epsilon_steps && (relaxed.is_some() || far) {
+                relaxed = Some((relaxed.unwrap_or(opts.epsilon_end) * 0.5).max(opts.relax_epsilon));
+            }
+            let eps = relaxed.unwrap_or(opts.schedule(it, opts.epsilon_start, opts.epsilon_end));
 
             // 3. Grass fire.
             let t = Instant::now();
