@@ -408,6 +408,12 @@ fn captures_fired_through_the_box_are_processed_and_the_api_agrees() {
         page.contains("latest-preview") && page.contains("982000000000101"),
         "{page}"
     );
+    // the reprocessed result is on disk a moment before its job is marked done
+    daemon.wait_for(Duration::from_secs(30), "the reprocessed job done", |d| {
+        d.get("/metrics")
+            .1
+            .contains("conformd_captures{state=\"done\"} 5")
+    });
     let (_, metrics) = daemon.get("/metrics");
     assert!(
         metrics.contains("conformd_captures{state=\"done\"} 5"),
