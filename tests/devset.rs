@@ -237,3 +237,57 @@ fn without_landmarks(
     );
     (e, a)
 }
+
+#[test]
+fn the_decimated_level_loses_nothing_against_full_resolution() {
+    // the cat: uneven triangles, three holes, 7,865 vertices (decimated to 2,000)
+    let cases = devset::standard_cases(&["cat"]).unwrap();
+    let c = cases.iter().find(|c| c.landmarks).unwrap();
+    let case = &c.case;
+    let lm = Some((&case.template_landmarks[..], &case.scan_landmarks[..]));
+    let error = |opts: &ConformOptions| {
+        let r = conform(&case.template, &case.scan, lm, opts, &mut |_| {}).unwrap();
+        let e = correspondence_error(
+            &r.mesh.vertices,
+            case.truth.as_ref().unwrap(),
+            &case.in_hole,
+            &case.template.triangles,
+        );
+        (e, r.report)
+    };
+    let (multires, report) = error(&ConformOptions::default());
+    let (full, full_report) = error(&ConformOptions {
+        multires_vertices: 0,
+        ..Default::default()
+    });
+    eprintln!(
+        "cat: decimated then full {:.3}% (holes {:.3}%, {:.2} s), full throughout {:.3}% (holes {:.3}%, {:.2} s)",
+        multires.mean * 100.0,
+        multires.mean_in_holes * 100.0,
+        report.seconds.total,
+        full.mean * 100.0,
+        full.mean_in_holes * 100.0,
+        full_report.seconds.total
+    );
+    // the schedule ran on the decimated template, the last iterations on all vertices
+    let n = case.template.vertices.len();
+    let first = &report.iterations[0];
+    let last = report.iterations.last().unwrap();
+    assert!(
+        first.vertices <= 2000 && first.vertices >= 1900,
+        "{}",
+        first.vertices
+    );
+    assert_eq!(last.vertices, n);
+    assert!(full_report.iterations.iter().all(|it| it.vertices == n));
+    assert!(last.mean_distance_relative < 0.001);
+    assert!(
+        multires.mean <= full.mean * 1.05 && multires.mean_in_holes <= full.mean_in_holes * 1.1,
+        "decimated level {:.3}% / holes {:.3}%, full resolution {:.3}% / {:.3}%",
+        multires.mean * 100.0,
+        multires.mean_in_holes * 100.0,
+        full.mean * 100.0,
+        full.mean_in_holes * 100.0
+    );
+    assert_eq!(multires.flipped, 0);
+}

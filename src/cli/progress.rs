@@ -18,10 +18,14 @@ pub fn iterations(len: usize, what: &str) -> ProgressBar {
 
 /// Moves a bar to an iteration's report.
 pub fn tick(pb: &ProgressBar, it: &IterationReport) {
+    // the full-resolution iterations after a decimated level's run past max_iterations
+    if pb.length().is_some_and(|l| it.iteration as u64 > l) {
+        pb.set_length(it.iteration as u64);
+    }
     pb.set_position(it.iteration as u64);
     pb.set_message(format!(
-        "matched {} filled {} update {:.2e}",
-        it.matched, it.filled, it.max_update_relative
+        "{} vertices, matched {} filled {} update {:.2e}",
+        it.vertices, it.matched, it.filled, it.max_update_relative
     ));
 }
 

@@ -7,6 +7,7 @@ use super::{
     CoarseStage, ConformOptions, HoleSprings, IterationReport, Method, Pairs, RestShape,
     StageTimes, coarse, fill, match_all, solve,
 };
+use crate::mesh::decimate::Decimated;
 use crate::mesh::transform::Similarity;
 use crate::mesh::{Mesh, V3, quality, topology};
 use nalgebra::{Matrix3, UnitQuaternion};
@@ -28,6 +29,9 @@ pub(super) struct Fit<'a> {
     rot: Vec<UnitQuaternion<f64>>,
     local_scale: Vec<f64>,
     pub limits: MatchLimits,
+    /// the springs' epsilon once relaxed below epsilon_end (see
+    /// `ConformOptions::relax_epsilon`); carried from a coarse level to the full one
+    relaxed: Option<f64>,
 }
 
 impl<'a> Fit<'a> {
@@ -105,7 +109,34 @@ impl<'a> Fit<'a> {
             rest_norms,
             rot: vec![UnitQuaternion::identity(); n],
             local_scale: vec![1.0; n],
+            relaxed: None,
         }
+    }
+
+    /// Takes over a fit made on the decimated template `level`: every vertex follows its
+    /// nearest kept vertex rigidly (that vertex's rotation and scale applied to the rest
+    /// offset between them), and inherits its rotation, scale and relaxation. Returns the
+    /// full-resolution positions.
+    pub fn take_over(&mut self, coarse: &Fit, cx: &[V3], level: &Decimated) -> Vec<V3> {
+        let x: Vec<V3> = (0..self.rest.len())
+            .map(|i| {
+                let c = level.owner[i] as usize;
+                let k = level.kept[c] as usize;
+                let r = coarse.rot[c] * (self.rest[i] - self.rest[k]);
+                cx[c] + r * coarse.local_scale[c]
+            })
+            .collect();
+        for (i, &c) in level.owner.iter().enumerate() {
+            self.rot[i] = coarse.rot[c as usize];
+            self.local_scale[i] = coarse.local_scale[c as usize];
+        }
+        self.relaxed = coarse.relaxed;
+        x
+    }
+
+    /// The epsilon the last iteration used (relaxed or the schedule's end).
+    pub fn final_epsilon(&self, opts: &ConformOptions) -> f64 {
+        self.relaxed.unwrap_or(opts.epsilon_end)
     }
 
     /// Runs the coarse deformation-graph stage when the options ask for it (by default
@@ -170,8 +201,6 @@ impl<'a> Fit<'a> {
         cancel: &std::sync::atomic::AtomicBool,
     ) -> (Vec<IterationReport>, bool) {
         let mut reports: Vec<IterationReport> = Vec::new();
-        // relaxation: below epsilon_end once the fit proves too stiff for the subject
-        let mut relaxed: Option<f64> = None;
         for it in 0..opts.max_iterations {
             if cancel.load(std::sync::atomic::Ordering::Relaxed) {
                 break;
@@ -197,12 +226,15 @@ impl<'a> Fit<'a> {
             // shape: loosen them, a step per iteration, down to relax_epsilon.
             let can_relax = opts.method == Method::Default
                 && opts.relax_epsilon < opts.epsilon_end
-                && relaxed.is_none_or(|e| e > opts.relax_epsilon);
+                && self.relaxed.is_none_or(|e| e > opts.relax_epsilon);
             let far = summary.mean_distance > opts.relax_distance * self.diag;
-            if can_relax && it >= opts.epsilon_steps && (relaxed.is_some() || far) {
-                relaxed = Some((relaxed.unwrap_or(opts.epsilon_end) * 0.5).max(opts.relax_epsilon));
+            if can_relax && it >= opts.epsilon_steps && (self.relaxed.is_some() || far) {
+                self.relaxed =
+                    Some((self.relaxed.unwrap_or(opts.epsilon_end) * 0.5).max(opts.relax_epsilon));
             }
-            let eps = relaxed.unwrap_or(opts.schedule(it, opts.epsilon_start, opts.epsilon_end));
+            let eps =
+                self.relaxed
+                    .unwrap_or(opts.schedule(it, opts.epsilon_start, opts.epsilon_end));
 
             // 3. Grass fire.
             let t = Instant::now();
@@ -225,20 +257,19 @@ impl<'a> Fit<'a> {
                 disp: &disp,
                 ring: &ring,
                 eps,
-                relaxed: relaxed.is_some(),
+                relaxed: self.relaxed.is_some(),
             };
             let solver_iterations = match opts.method {
                 Method::Default => self.arap_solve(x, &x_prev, &step, opts, times),
                 Method::Paper => self.paper_solve(x, &step, opts, times),
             };
 
-            let max_update = x
-                .iter()
-                .zip(&x_prev)
-                .map(|(a, b)| (a - b).norm())
-                .fold(0.0, f64::max);
+            let updates: Vec<f64> = x.iter().zip(&x_prev).map(|(a, b)| (a - b).norm()).collect();
+            let max_update = updates.iter().copied().fold(0.0, f64::max);
+            let mean_update = updates.iter().sum::<f64>() / updates.len().max(1) as f64;
             let rep = IterationReport {
                 iteration: it + 1,
+                vertices: x.len(),
                 epsilon: eps,
                 variation: self.baseline.measure(x),
                 matched: summary.matched,
@@ -248,6 +279,7 @@ impl<'a> Fit<'a> {
                 mean_distance_relative: f64::NAN,
                 max_update,
                 max_update_relative: max_update / self.diag,
+                mean_update_relative: mean_update / self.diag,
                 solver_iterations,
                 seconds: t_it.elapsed().as_secs_f64(),
             };
@@ -255,7 +287,7 @@ impl<'a> Fit<'a> {
             reports.push(rep);
             if max_update < opts.tolerance * self.diag
                 && it + 1 >= opts.epsilon_steps
-                && !(can_relax && (far || relaxed.is_some()))
+                && !(can_relax && (far || self.relaxed.is_some()))
             {
                 return (reports, true);
             }
@@ -285,7 +317,9 @@ impl<'a> Fit<'a> {
             .map(|i| if s.matched[i] { x[i] } else { x[i] + s.disp[i] })
             .collect();
         let mut solver_iterations = 0;
+        let mut accel = Anderson::new(opts.anderson_history);
         for _ in 0..opts.rotation_iterations.max(1) {
+            let x_in = xc.clone();
             let t = Instant::now();
             let limit = if s.relaxed {
                 opts.relax_scale_limit
@@ -345,6 +379,7 @@ impl<'a> Fit<'a> {
             );
             solver_iterations += st.iterations;
             times.solve += t.elapsed().as_secs_f64();
+            accel.step(&x_in, &mut xc);
         }
         *x = xc;
         solver_iterations
@@ -433,5 +468,97 @@ impl Step<'_> {
     /// definite when a whole component has no data.
     fn anchor(&self) -> f64 {
         1e-6 * self.mean_weight()
+    }
+}
+
+/// Anderson acceleration (type II) of the rotation-fit / linear-solve alternation, a
+/// fixed-point map `x -> G(x)` that converges slowly when a rotation must travel far
+/// along the mesh (a turned limb). Mixing the last few steps extrapolates along the
+/// direction they agree on; a step whose residual grows is taken plainly and the
+/// history restarts, so it cannot do worse than the plain alternation by much.
+struct Anderson {
+    history: usize,
+    /// previous step's input and its residual `G(x) - x`, flattened
+    prev: Option<(Vec<f64>, Vec<f64>)>,
+    /// differences of successive residuals and of successive images `G(x)`
+    df: Vec<Vec<f64>>,
+    dg: Vec<Vec<f64>>,
+    last_residual: f64,
+}
+
+impl Anderson {
+    fn new(history: usize) -> Self {
+        Anderson {
+            history,
+            prev: None,
+            df: Vec::new(),
+            dg: Vec::new(),
+            last_residual: f64::INFINITY,
+        }
+    }
+
+    /// `x_in` went into the map, `out` holds `G(x_in)`; overwritten with the next iterate.
+    fn step(&mut self, x_in: &[V3], out: &mut [V3]) {
+        if self.history == 0 {
+            return;
+        }
+        let g: Vec<f64> = out.iter().flat_map(|v| [v.x, v.y, v.z]).collect();
+        let f: Vec<f64> = x_in
+            .iter()
+            .zip(out.iter())
+            .flat_map(|(a, b)| [b.x - a.x, b.y - a.y, b.z - a.z])
+            .collect();
+        let fnorm = f.iter().map(|v| v * v).sum::<f64>().sqrt();
+        if fnorm > self.last_residual {
+            // the extrapolation overshot: keep the plain step, forget the history
+            self.df.clear();
+            self.dg.clear();
+            self.prev = None;
+        }
+        self.last_residual = fnorm;
+        if let Some((g0, f0)) = self.prev.take() {
+            self.df
+                .push(f.iter().zip(&f0).map(|(a, b)| a - b).collect());
+            self.dg
+                .push(g.iter().zip(&g0).map(|(a, b)| a - b).collect());
+            if self.df.len() > self.history {
+                self.df.remove(0);
+                self.dg.remove(0);
+            }
+        }
+        self.prev = Some((g.clone(), f.clone()));
+        let m = self.df.len();
+        if m == 0 {
+            return;
+        }
+        // least squares: gamma = argmin |f - DF gamma|, by the m x m normal equations
+        let dot = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(p, q)| p * q).sum::<f64>();
+        let mut ata = nalgebra::DMatrix::<f64>::zeros(m, m);
+        let mut atb = nalgebra::DVector::<f64>::zeros(m);
+        for i in 0..m {
+            for j in i..m {
+                let v = dot(&self.df[i], &self.df[j]);
+                ata[(i, j)] = v;
+                ata[(j, i)] = v;
+            }
+            atb[i] = dot(&self.df[i], &f);
+        }
+        // a little Tikhonov keeps nearly parallel steps from blowing up
+        let ridge = 1e-10 * (0..m).map(|i| ata[(i, i)]).fold(0.0, f64::max);
+        for i in 0..m {
+            ata[(i, i)] += ridge;
+        }
+        let Some(gamma) = ata.cholesky().map(|c| c.solve(&atb)) else {
+            return;
+        };
+        for (k, o) in out.iter_mut().enumerate() {
+            let mut v = [g[3 * k], g[3 * k + 1], g[3 * k + 2]];
+            for (i, dg) in self.dg.iter().enumerate() {
+                for c in 0..3 {
+                    v[c] -= gamma[i] * dg[3 * k + c];
+                }
+            }
+            *o = V3::new(v[0], v[1], v[2]);
+        }
     }
 }

@@ -19,6 +19,7 @@ mod fit;
 pub mod rbf;
 pub mod solve;
 
+use crate::mesh::decimate::Decimated;
 use crate::mesh::landmarks::{Landmark, LandmarkPos};
 use crate::mesh::quality::{self, Variation};
 use crate::mesh::transform::fit_similarity;
@@ -118,6 +119,15 @@ pub struct ConformOptions {
     pub point_to_point: f64,
     /// rotation fit / linear solve alternations per iteration (default method)
     pub rotation_iterations: usize,
+    /// Anderson acceleration of those alternations: how many past steps are mixed
+    /// (0 = plain alternation)
+    pub anderson_history: usize,
+    /// vertices of the decimated template the schedule runs on (default method) before
+    /// the last iterations at full resolution; 0, or a template under twice this size,
+    /// fits at full resolution throughout
+    pub multires_vertices: usize,
+    /// iterations at full resolution after the decimated template's
+    pub multires_iterations: usize,
     /// rings of neighbours over which each vertex's rotation is fitted (default method);
     /// 0 fits each vertex alone
     pub rotation_rings: usize,
@@ -178,6 +188,9 @@ impl Default for ConformOptions {
             landmark_weight: 10.0,
             point_to_point: 0.1,
             rotation_iterations: 3,
+            anderson_history: 3,
+            multires_vertices: 2000,
+            multires_iterations: 2,
             rotation_rings: 4,
             hole_springs: HoleSprings::Rotated,
             local_scale_limit: 1.0,
@@ -253,6 +266,9 @@ impl ConformOptions {
             ("epsilon_steps", self.epsilon_steps, 1, 1000),
             ("rotation_iterations", self.rotation_iterations, 1, 50),
             ("rotation_rings", self.rotation_rings, 1, 10),
+            ("anderson_history", self.anderson_history, 0, 20),
+            ("multires_iterations", self.multires_iterations, 1, 1000),
+            ("multires_vertices", self.multires_vertices, 0, 10_000_000),
             ("coarse_nodes", self.coarse_nodes, 4, 20_000),
             ("coarse_iterations", self.coarse_iterations, 1, 10_000),
             (
@@ -353,6 +369,8 @@ pub enum ConformError {
 #[derive(Debug, Clone, serde::Serialize)]
 pub struct IterationReport {
     pub iteration: usize,
+    /// the template vertices this iteration moved: fewer on the decimated level
+    pub vertices: usize,
     pub epsilon: f64,
     /// variations of edge length, angle and area against the original template
     pub variation: Variation,
@@ -367,6 +385,8 @@ pub struct IterationReport {
     /// largest vertex update of this iteration, scan units and relative
     pub max_update: f64,
     pub max_update_relative: f64,
+    /// mean vertex update of this iteration, relative to the diagonal
+    pub mean_update_relative: f64,
     pub solver_iterations: usize,
     pub seconds: f64,
 }
@@ -489,11 +509,41 @@ pub struct Conformed {
 }
 
 /// Landmark pairs by name: template vertex index and scan point.
+#[derive(Debug, Clone)]
 struct Pairs {
     names: Vec<String>,
     vertex: Vec<u32>,
     target: Vec<V3>,
     unpaired: Vec<String>,
+}
+
+impl Pairs {
+    /// The same pairs on a decimated template (landmark vertices are kept by it).
+    fn on_level(&self, level: &Decimated) -> Pairs {
+        Pairs {
+            vertex: self
+                .vertex
+                .iter()
+                .map(|&v| level.owner[v as usize])
+                .collect(),
+            ..self.clone()
+        }
+    }
+}
+
+/// The decimated template the default method runs its schedule on, when the options ask
+/// for one and the template is large enough to gain from it.
+fn multires_level(
+    template: &Mesh,
+    pairs: Option<&Pairs>,
+    opts: &ConformOptions,
+) -> Option<Decimated> {
+    let target = opts.multires_vertices;
+    if opts.method != Method::Default || target == 0 || template.vertices.len() * 4 < target * 5 {
+        return None;
+    }
+    let protected = pairs.map_or(&[][..], |p| &p.vertex[..]);
+    Some(crate::mesh::decimate::decimate(template, target, protected))
 }
 
 fn pair_landmarks(
@@ -646,6 +696,9 @@ pub fn conform_cancellable(
     // hypothesis the residuals could not tell apart, kept by the fit's distortion and
     // distance to the scan (a template turned round fits with torn, stretched springs).
     let fitted = hypotheses.len();
+    let t = Instant::now();
+    let level = multires_level(template, pairs.as_ref(), opts);
+    times.setup += t.elapsed().as_secs_f64();
     let mut best: Option<FittedHypothesis> = None;
     for (k, (x0, sim)) in hypotheses.into_iter().enumerate() {
         let mut x = x0;
@@ -653,12 +706,70 @@ pub fn conform_cancellable(
         if cancelled() {
             return Err(ConformError::Cancelled);
         }
-        times.coarse += fit.coarse(&mut x, &surface, pairs.is_some(), opts);
-        if cancelled() {
-            return Err(ConformError::Cancelled);
-        }
-        let (reports, converged) =
-            fit.iterate(&mut x, &surface, opts, &mut times, progress, cancel);
+        let (reports, converged) = match &level {
+            // the schedule on the decimated template, the last iterations at full
+            // resolution from where it left off
+            Some(level) => {
+                let cpairs = pairs.as_ref().map(|p| p.on_level(level));
+                let mut cx: Vec<V3> = level.kept.iter().map(|&i| x[i as usize]).collect();
+                let mut cfit = fit::Fit::new(&level.mesh, &cx, &sim, cpairs.as_ref(), opts);
+                times.coarse += cfit.coarse(&mut cx, &surface, pairs.is_some(), opts);
+                if cancelled() {
+                    return Err(ConformError::Cancelled);
+                }
+                let (mut reports, _) =
+                    cfit.iterate(&mut cx, &surface, opts, &mut times, progress, cancel);
+                if cancelled() {
+                    return Err(ConformError::Cancelled);
+                }
+                // the coarse level's last distance (the full level's first match is of
+                // another mesh)
+                let t = Instant::now();
+                let (m, _) = match_all(&surface, &cx, &level.mesh.triangles, &cfit.limits);
+                times.correspond += t.elapsed().as_secs_f64();
+                if let Some(r) = reports.last_mut() {
+                    r.mean_distance = MatchSummary::of(&m).mean_distance;
+                    r.mean_distance_relative = r.mean_distance / cfit.diag;
+                }
+                x = fit.take_over(&cfit, &cx, level);
+                let eps = cfit.final_epsilon(opts);
+                // a change of shape (the fit relaxed) needs the full resolution's detail
+                // (corners, edges) longer than a change of posture
+                let iterations = if eps < opts.epsilon_end {
+                    opts.multires_iterations.max(opts.max_iterations)
+                } else {
+                    opts.multires_iterations
+                };
+                let fine = ConformOptions {
+                    max_iterations: iterations,
+                    epsilon_start: eps,
+                    epsilon_end: eps,
+                    epsilon_steps: 1,
+                    max_distance_start: opts.max_distance,
+                    ..opts.clone()
+                };
+                let done = reports.len();
+                let mut renumbered = |r: &IterationReport| {
+                    let mut r = r.clone();
+                    r.iteration += done;
+                    progress(&r)
+                };
+                let (more, converged) =
+                    fit.iterate(&mut x, &surface, &fine, &mut times, &mut renumbered, cancel);
+                reports.extend(more.into_iter().map(|mut r| {
+                    r.iteration += done;
+                    r
+                }));
+                (reports, converged)
+            }
+            None => {
+                times.coarse += fit.coarse(&mut x, &surface, pairs.is_some(), opts);
+                if cancelled() {
+                    return Err(ConformError::Cancelled);
+                }
+                fit.iterate(&mut x, &surface, opts, &mut times, progress, cancel)
+            }
+        };
         if cancelled() {
             return Err(ConformError::Cancelled);
         }

@@ -2,6 +2,7 @@
 //! is computed from one mesh alone: bounding box, normals, file io, landmarks, topology,
 //! and the quality figures of Ju et al. 2004, section 3.1.
 
+pub mod decimate;
 pub mod groups;
 pub mod io;
 pub mod landmarks;

@@ -127,18 +127,26 @@ pub fn folded_triangles(mesh: &Mesh) -> usize {
                 .filter(|n| n.iter().all(|c| c.is_finite()))
         })
         .collect();
-    let mut by_edge: std::collections::HashMap<[u32; 2], Vec<usize>> =
-        std::collections::HashMap::new();
-    for (i, t) in mesh.triangles.iter().enumerate() {
-        for k in 0..3 {
-            let (a, b) = (t[k], t[(k + 1) % 3]);
-            by_edge.entry([a.min(b), a.max(b)]).or_default().push(i);
-        }
-    }
+    // (edge, triangle) sorted by edge: each run is the triangles sharing one edge
+    let mut by_edge: Vec<(u64, u32)> = mesh
+        .triangles
+        .iter()
+        .enumerate()
+        .flat_map(|(i, t)| {
+            (0..3).map(move |k| {
+                (
+                    super::topology::undirected_key(t[k], t[(k + 1) % 3]),
+                    i as u32,
+                )
+            })
+        })
+        .collect();
+    by_edge.sort_unstable();
     let mut opposed = vec![0u32; nt];
-    for tris in by_edge.values() {
-        for &i in tris {
-            for &j in tris {
+    for run in by_edge.chunk_by(|a, b| a.0 == b.0) {
+        for &(_, i) in run {
+            for &(_, j) in run {
+                let (i, j) = (i as usize, j as usize);
                 if let (Some(ni), Some(nj)) = (normals[i], normals[j])
                     && i != j
                     && ni.dot(&nj) < -0.866

@@ -21,18 +21,29 @@ pub fn vertex_neighbours(nv: usize, tris: &[[u32; 3]]) -> Vec<Vec<u32>> {
     nb
 }
 
-/// Undirected edges `(a < b)` with the number of triangles using each, sorted.
+/// Undirected edges `(a < b)` with the number of triangles using each, sorted. (By
+/// sorting, not hashing: several times faster on meshes of 10k-100k vertices, and the
+/// conformation report computes it for every result.)
 pub fn edge_face_counts(tris: &[[u32; 3]]) -> Vec<([u32; 2], u32)> {
-    let mut m: HashMap<[u32; 2], u32> = HashMap::with_capacity(tris.len() * 2);
-    for t in tris {
-        for k in 0..3 {
-            let (a, b) = (t[k], t[(k + 1) % 3]);
-            *m.entry([a.min(b), a.max(b)]).or_insert(0) += 1;
+    let mut keys: Vec<u64> = tris
+        .iter()
+        .flat_map(|t| (0..3).map(move |k| undirected_key(t[k], t[(k + 1) % 3])))
+        .collect();
+    keys.sort_unstable();
+    let mut out: Vec<([u32; 2], u32)> = Vec::with_capacity(keys.len() / 2 + 1);
+    for k in keys {
+        let e = [(k >> 32) as u32, k as u32];
+        match out.last_mut() {
+            Some((last, c)) if *last == e => *c += 1,
+            _ => out.push((e, 1)),
         }
     }
-    let mut v: Vec<_> = m.into_iter().collect();
-    v.sort_unstable();
-    v
+    out
+}
+
+/// An undirected edge as one sortable number, smaller index first.
+pub fn undirected_key(a: u32, b: u32) -> u64 {
+    ((a.min(b) as u64) << 32) | a.max(b) as u64
 }
 
 /// Unique undirected edges `(a < b)`, sorted.
@@ -110,13 +121,17 @@ pub fn components(nv: usize, tris: &[[u32; 3]]) -> (Vec<u32>, usize) {
         }
     }
     let mut label = vec![u32::MAX; nv];
-    let mut map: HashMap<u32, u32> = HashMap::new();
+    let mut of_root = vec![u32::MAX; nv];
+    let mut count = 0u32;
     for v in 0..nv as u32 {
-        let r = find(&mut parent, v);
-        let n = map.len() as u32;
-        label[v as usize] = *map.entry(r).or_insert(n);
+        let r = find(&mut parent, v) as usize;
+        if of_root[r] == u32::MAX {
+            of_root[r] = count;
+            count += 1;
+        }
+        label[v as usize] = of_root[r];
     }
-    (label, map.len())
+    (label, count as usize)
 }
 
 /// Bridges between the separate pieces of a fragmented mesh (a scan triangulated per
@@ -169,20 +184,21 @@ pub struct TopologyReport {
 /// in opposite directions, and no triangle is degenerate.
 pub fn report(mesh: &Mesh) -> TopologyReport {
     let tris = &mesh.triangles;
-    let mut directed: HashMap<(u32, u32), u32> = HashMap::with_capacity(tris.len() * 3);
-    for t in tris {
-        for k in 0..3 {
-            *directed.entry((t[k], t[(k + 1) % 3])).or_insert(0) += 1;
-        }
-    }
+    let mut directed: Vec<u64> = tris
+        .iter()
+        .flat_map(|t| (0..3).map(move |k| ((t[k] as u64) << 32) | t[(k + 1) % 3] as u64))
+        .collect();
+    directed.sort_unstable();
+    let times = |a: u32, b: u32| {
+        let k = ((a as u64) << 32) | b as u64;
+        directed.partition_point(|&d| d <= k) - directed.partition_point(|&d| d < k)
+    };
     let counts = edge_face_counts(tris);
     let boundary_edges = counts.iter().filter(|(_, c)| *c == 1).count();
     let non_manifold_edges = counts.iter().filter(|(_, c)| *c > 2).count();
     let inconsistent_edges = counts
         .iter()
-        .filter(|([a, b], c)| {
-            *c == 2 && (directed.get(&(*a, *b)) != Some(&1) || directed.get(&(*b, *a)) != Some(&1))
-        })
+        .filter(|([a, b], c)| *c == 2 && (times(*a, *b) != 1 || times(*b, *a) != 1))
         .count();
     let degenerate_triangles = tris
         .iter()
