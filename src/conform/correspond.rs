@@ -46,6 +46,17 @@ enum Index {
     },
 }
 
+/// The scan's local plane around one of its points: the centroid and mean normal of the
+/// point's CLOUD_K nearest, and how far they spread. Computed the first time a query
+/// lands on that point and kept: the fit's vertices move little between iterations, so
+/// most queries land where one did before.
+#[derive(Debug, Clone, Copy)]
+struct Patch {
+    centroid: V3,
+    normal: V3,
+    reach: f64,
+}
+
 /// A scan prepared for repeated closest-point queries.
 pub struct ScanSurface {
     index: Index,
@@ -55,6 +66,8 @@ pub struct ScanSurface {
     /// median distance from a point to its nearest neighbour
     pub spacing: f64,
     pub diagonal: f64,
+    /// per point of a cloud: its plane, once asked for (empty for a mesh)
+    patches: Vec<std::sync::OnceLock<Patch>>,
 }
 
 #[derive(Debug, Clone, thiserror::Error)]
@@ -155,13 +168,70 @@ impl ScanSurface {
                 boundary_edge,
             }
         };
+        let patches = match &index {
+            Index::Cloud { .. } => (0..points.len())
+                .map(|_| std::sync::OnceLock::new())
+                .collect(),
+            Index::Mesh { .. } => Vec::new(),
+        };
         Ok(ScanSurface {
             index,
             tree,
             points,
             spacing,
             diagonal,
+            patches,
         })
+    }
+
+    /// The plane around cloud point `i` (see [`Patch`]): its CLOUD_K nearest (gathered
+    /// as the small ball of two spacings, far cheaper than kiddo's k-nearest search, which
+    /// serves only where the ball holds too few), their normals turned to agree with the
+    /// point's own.
+    fn patch(&self, i: usize, normals: &[V3]) -> Patch {
+        let points = &self.points;
+        let p = points[i];
+        let r = 2.0 * self.spacing;
+        let mut ball: Vec<(f64, u32)> = self
+            .tree
+            .within_unsorted::<SquaredEuclidean>(&[p.x, p.y, p.z], r * r)
+            .iter()
+            .map(|m| (m.distance, m.item as u32))
+            .collect();
+        if ball.len() < CLOUD_K {
+            ball = self
+                .tree
+                .nearest_n::<SquaredEuclidean>(&[p.x, p.y, p.z], NonZero::new(CLOUD_K).unwrap())
+                .iter()
+                .map(|m| (m.distance, m.item as u32))
+                .collect();
+        }
+        let k = CLOUD_K.min(ball.len());
+        if k < ball.len() {
+            ball.select_nth_unstable_by(k - 1, |a, b| a.0.total_cmp(&b.0));
+        }
+        let nb = &ball[..k];
+        let n0 = normals[i];
+        let mut c = V3::zeros();
+        let mut nsum = V3::zeros();
+        for &(_, q) in nb {
+            let q = q as usize;
+            c += points[q];
+            let nq = normals[q];
+            nsum += if nq.dot(&n0) < 0.0 { -nq } else { nq };
+        }
+        c /= k.max(1) as f64;
+        // how far the neighbours spread about their centroid: a foot beyond it looks past
+        // the edge of a hole (all the neighbours lie to one side)
+        let reach = nb
+            .iter()
+            .map(|&(_, q)| (points[q as usize] - c).norm())
+            .fold(self.spacing, f64::max);
+        Patch {
+            centroid: c,
+            normal: nsum.try_normalize(0.0).unwrap_or(n0),
+            reach,
+        }
     }
 
     /// The scan's unit normal at point `i` (a mesh's vertex normal, or the cloud's given
@@ -243,60 +313,15 @@ impl ScanSurface {
                 (p, normal, true)
             }
             Index::Cloud { normals, oriented } => {
-                let points = &self.points;
                 let one = self.tree.nearest_one::<SquaredEuclidean>(&[x.x, x.y, x.z]);
                 if one.distance > lim.max_distance * lim.max_distance {
                     return None;
                 }
-                // x's own CLOUD_K nearest lie within a couple of spacings more than the
-                // nearest point's distance: gathering that small ball is far cheaper than
-                // kiddo's k-nearest search, which then serves only where the ball holds
-                // too few
-                let r = one.distance.sqrt() + 2.0 * self.spacing;
-                let mut ball: Vec<(f64, u32)> = self
-                    .tree
-                    .within_unsorted::<SquaredEuclidean>(&[x.x, x.y, x.z], r * r)
-                    .iter()
-                    .map(|m| (m.distance, m.item as u32))
-                    .collect();
-                if ball.len() < CLOUD_K {
-                    ball = self
-                        .tree
-                        .nearest_n::<SquaredEuclidean>(
-                            &[x.x, x.y, x.z],
-                            NonZero::new(CLOUD_K).unwrap(),
-                        )
-                        .iter()
-                        .map(|m| (m.distance, m.item as u32))
-                        .collect();
-                }
-                let k = CLOUD_K.min(ball.len());
-                if k == 0 {
-                    return None;
-                }
-                ball.select_nth_unstable_by(k - 1, |a, b| a.0.total_cmp(&b.0));
-                let nb: Vec<u32> = ball[..k].iter().map(|b| b.1).collect();
-                let nb = &nb;
-                let first = one.item as u32;
-                let n0 = normals[first as usize];
-                let mut c = V3::zeros();
-                let mut nsum = V3::zeros();
-                for &q in nb {
-                    let q = q as usize;
-                    c += points[q];
-                    let nq = normals[q];
-                    nsum += if nq.dot(&n0) < 0.0 { -nq } else { nq };
-                }
-                c /= nb.len() as f64;
-                let normal = nsum.try_normalize(0.0).unwrap_or(n0);
+                let first = one.item as usize;
+                let patch = self.patches[first].get_or_init(|| self.patch(first, normals));
+                let (c, normal, reach) = (patch.centroid, patch.normal, patch.reach);
                 let foot = x - normal * normal.dot(&(x - c));
-                // The foot must lie where there is data: within the patch the neighbours
-                // span around their centroid, else the vertex looks past the edge of a
-                // hole (all its neighbours lie to one side).
-                let reach = nb
-                    .iter()
-                    .map(|&q| (points[q as usize] - c).norm())
-                    .fold(self.spacing, f64::max);
+                // the foot must lie where there is data
                 if (foot - c).norm() > reach {
                     return None;
                 }
