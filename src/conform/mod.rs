@@ -676,7 +676,21 @@ pub fn conform_cancellable(
                 .join(", ")
         )));
     }
-    let surface = ScanSurface::new(scan)?;
+    // The scan's search structures and the decimated template (which keeps the landmark
+    // vertices) are independent: built side by side.
+    let (surface, paired) = rayon::join(
+        || ScanSurface::new(scan),
+        || -> Result<_, ConformError> {
+            let pairs = match landmarks {
+                Some((tl, sl)) => Some(pair_landmarks(tl, sl, template, scan)?),
+                None => None,
+            };
+            let level = multires_level(template, pairs.as_ref(), opts);
+            Ok((pairs, level))
+        },
+    );
+    let surface = surface?;
+    let (pairs, level) = paired?;
     let n = template.vertices.len();
     let mut times = StageTimes {
         setup: t_start.elapsed().as_secs_f64(),
@@ -685,10 +699,6 @@ pub fn conform_cancellable(
 
     // 1. Global mapping.
     let t0 = Instant::now();
-    let pairs = match landmarks {
-        Some((tl, sl)) => Some(pair_landmarks(tl, sl, template, scan)?),
-        None => None,
-    };
     let (hypotheses, mut global_report) = global_mapping(template, &surface, pairs.as_ref(), opts)?;
     times.global = t0.elapsed().as_secs_f64();
 
@@ -696,9 +706,6 @@ pub fn conform_cancellable(
     // hypothesis the residuals could not tell apart, kept by the fit's distortion and
     // distance to the scan (a template turned round fits with torn, stretched springs).
     let fitted = hypotheses.len();
-    let t = Instant::now();
-    let level = multires_level(template, pairs.as_ref(), opts);
-    times.setup += t.elapsed().as_secs_f64();
     let mut best: Option<FittedHypothesis> = None;
     for (k, (x0, sim)) in hypotheses.into_iter().enumerate() {
         let mut x = x0;
