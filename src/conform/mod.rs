@@ -720,12 +720,23 @@ pub fn conform_cancellable(
                 let cpairs = pairs.as_ref().map(|p| p.on_level(level));
                 let mut cx: Vec<V3> = level.kept.iter().map(|&i| x[i as usize]).collect();
                 let mut cfit = fit::Fit::new(&level.mesh, &cx, &sim, cpairs.as_ref(), opts);
+                // the decimated level's iterations are cheap: all of them run
+                let coarse_opts = ConformOptions {
+                    tolerance: opts.tolerance * 1e-3,
+                    ..opts.clone()
+                };
                 times.coarse += cfit.coarse(&mut cx, &surface, pairs.is_some(), opts);
                 if cancelled() {
                     return Err(ConformError::Cancelled);
                 }
-                let (mut reports, _) =
-                    cfit.iterate(&mut cx, &surface, opts, &mut times, progress, cancel);
+                let (mut reports, _) = cfit.iterate(
+                    &mut cx,
+                    &surface,
+                    &coarse_opts,
+                    &mut times,
+                    progress,
+                    cancel,
+                );
                 if cancelled() {
                     return Err(ConformError::Cancelled);
                 }
