@@ -1,7 +1,8 @@
 # conformd — `make demo` runs the main job on built-in defaults, `make test` runs every
 # test. Both first install the system packages the build needs when they are missing.
 
-APT_PACKAGES := libopencv-dev clang libclang-dev pkg-config libudev-dev
+# fonts-dejavu-core: the labels of the subject history plots
+APT_PACKAGES := libopencv-dev clang libclang-dev pkg-config libudev-dev fonts-dejavu-core
 # the status page's browser test runs Debian's headless Chromium
 TEST_PACKAGES := chromium
 CARGO ?= cargo

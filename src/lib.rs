@@ -6,6 +6,7 @@
 pub mod conform;
 pub mod daemon;
 pub mod jobs;
+pub mod measure;
 pub mod mesh;
 pub mod model;
 pub mod paths;

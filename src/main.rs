@@ -292,11 +292,13 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
                 group,
                 max_modes,
                 quality,
+                posture,
             } => {
                 let opts = conformd::model::BuildOptions {
                     align,
                     group,
                     max_modes,
+                    posture,
                 };
                 let (m, q) = jobs::model_build(&meshes, &opts, &out, quality)?;
                 println!("{m}");
@@ -316,12 +318,79 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
                     println!("wrote {}", f.display());
                 }
             }
+            ModelCmd::Posture {
+                kind,
+                vertices,
+                postures,
+                degrees,
+                out,
+            } => {
+                let m = jobs::model_posture(kind, vertices, postures, degrees, &out)?;
+                println!("{m}");
+                println!("wrote {}", out.display());
+            }
+            ModelCmd::Weigh {
+                fit,
+                results,
+                features,
+                out,
+            } => {
+                let m = jobs::model_weigh(&fit, &results, features, &out)?;
+                println!("{m}");
+                println!("wrote {}", out.display());
+            }
             ModelCmd::Score { model, meshes } => {
                 for s in jobs::model_score(&model, &meshes)? {
                     println!("{s}");
                 }
             }
         },
+        Cmd::Measure {
+            meshes,
+            template,
+            vertices,
+            template_landmarks,
+            template_groups,
+            definitions,
+            model,
+            normalise_posture,
+            csv,
+        } => {
+            let mut source =
+                TemplateSource::named(&template, template_groups).map_err(jobs::JobError::Usage)?;
+            if template_landmarks.is_some() {
+                source.landmarks = template_landmarks;
+            }
+            if source.generic.is_some() {
+                source.vertices = vertices;
+            }
+            let resolved = jobs::resolve_measurements(&source, definitions.as_deref())?;
+            let posture = normalise_posture
+                .then(|| jobs::posture_removal(&source, model.as_deref()))
+                .transpose()?;
+            let reports = meshes
+                .iter()
+                .map(|m| jobs::measure(m, &resolved, posture.as_ref()))
+                .collect::<Result<Vec<_>, _>>()?;
+            println!(
+                "{}",
+                serde_json::to_string_pretty(&reports).expect("serialises")
+            );
+            if let Some(p) = csv {
+                conformd::mesh::io::write_atomic(&p, jobs::measurements_csv(&reports).as_bytes())?;
+                eprintln!("wrote {}", p.display());
+            }
+        }
+        Cmd::Export { results, out } => {
+            let csv = jobs::export_csv(&results)?;
+            match out {
+                Some(p) => {
+                    conformd::mesh::io::write_atomic(&p, csv.as_bytes())?;
+                    eprintln!("wrote {}", p.display());
+                }
+                None => print!("{csv}"),
+            }
+        }
         Cmd::Info { mesh, original } => {
             let i = jobs::info(&mesh, original.as_deref())?;
             println!("{}", serde_json::to_string_pretty(&i).expect("serialises"));

@@ -423,6 +423,70 @@ fn captures_fired_through_the_box_are_processed_and_the_api_agrees() {
         metrics.contains("conformd_stage_seconds_bucket{stage=\"conform\""),
         "{metrics}"
     );
+
+    // measurements: in every report (raw and posture-free), a row per capture in the
+    // export, a page and a history plot per subject, shown in a browser
+    let (_, b) = daemon.get(&format!("/api/captures/{first}"));
+    let detail: serde_json::Value = serde_json::from_str(&b).unwrap();
+    let report = &detail["report"];
+    for key in ["measurements", "measurements_normalised"] {
+        let ms = report[key]
+            .as_array()
+            .unwrap_or_else(|| panic!("{key}: {report}"));
+        let girth = ms.iter().find(|m| m["name"] == "heart_girth").unwrap();
+        let g = girth["value"].as_f64().unwrap();
+        // the generic pig's heart girth is about 1.3 m
+        assert!((1.0..1.6).contains(&g), "{key}: heart girth {g}");
+    }
+    let (code, csv) = daemon.get("/api/export.csv");
+    assert_eq!(code, 200);
+    let lines: Vec<&str> = csv.lines().collect();
+    assert_eq!(lines.len(), 1 + 5, "{csv}");
+    assert!(
+        lines[0].starts_with("capture,subject,station,")
+            && lines[0].contains(",heart_girth,")
+            && lines[0].contains(",heart_girth_normalised,"),
+        "{}",
+        lines[0]
+    );
+    assert!(csv.contains(",sow-7,crate-t,"), "{csv}");
+    let (code, page) = daemon.get("/subjects/sow-7");
+    assert_eq!(code, 200, "{page}");
+    assert!(page.contains("/subjects/sow-7/history.png"), "{page}");
+    let (code, png) = daemon.get("/subjects/sow-7/history.png");
+    assert_eq!(code, 200);
+    // (the body comes as text: the PNG signature's first byte is not UTF-8)
+    assert!(png.starts_with("\u{FFFD}PNG"), "not a PNG");
+    let (code, _) = daemon.get("/subjects/nobody");
+    assert_eq!(code, 404);
+    let shot = d.join("subject.png");
+    let out = chromium(
+        &[
+            "--window-size=1000,1100",
+            &format!("--screenshot={}", shot.display()),
+        ],
+        &daemon.url("/subjects/sow-7"),
+        &d.join("chrome-subject"),
+    );
+    assert!(
+        shot.is_file(),
+        "no screenshot: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    // the plot's series are drawn in pure colours (red, blue, green...)
+    let img = image::open(&shot).unwrap().to_rgb8();
+    let plotted = img
+        .pixels()
+        .filter(|p| {
+            let (lo, hi) = (p.0.iter().min().unwrap(), p.0.iter().max().unwrap());
+            hi - lo > 150
+        })
+        .count();
+    eprintln!("subject page screenshot: {plotted} plotted pixels");
+    assert!(
+        plotted > 200,
+        "the history plot did not show ({plotted} pixels)"
+    );
 }
 
 #[test]

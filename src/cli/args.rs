@@ -242,6 +242,50 @@ pub enum Cmd {
     },
     /// List V4L2 cameras with their stable names, formats, sizes and controls.
     Cameras,
+    /// Measurements of conformed meshes (lengths, girths, widths, heights, area, volume),
+    /// as JSON on standard output and optionally CSV; with --model, also with the
+    /// posture removed.
+    Measure {
+        /// conformed meshes (results of one template)
+        #[arg(required = true)]
+        meshes: Vec<PathBuf>,
+        /// the template they were conformed from: `pig`, `body` or a mesh file
+        #[arg(long)]
+        template: String,
+        /// a generic template's resolution (that of the results)
+        #[arg(long)]
+        vertices: Option<usize>,
+        /// landmarks of a template mesh
+        #[arg(long)]
+        template_landmarks: Option<PathBuf>,
+        /// vertex groups of a template mesh
+        #[arg(long)]
+        template_groups: Option<PathBuf>,
+        /// measurement definitions (TOML; the generic templates bring their own:
+        /// config/measurements/)
+        #[arg(long)]
+        definitions: Option<PathBuf>,
+        /// a model with posture modes (`model posture`, `model build --posture`) for
+        /// --normalise-posture; without it a generic template's own skeleton is used
+        #[arg(long)]
+        model: Option<PathBuf>,
+        /// also measure every mesh with its posture removed: the generic template's pose
+        /// parameters fitted and undone, or --model's posture modes taken out
+        #[arg(long)]
+        normalise_posture: bool,
+        /// write a CSV too: a row per mesh, a column per measurement
+        #[arg(long)]
+        csv: Option<PathBuf>,
+    },
+    /// All results as CSV (a row per capture: subject, fit figures, measurements raw
+    /// and posture-free, weight), to standard output or --out.
+    Export {
+        /// the station's results folder
+        #[arg(long)]
+        results: PathBuf,
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
     /// Statistical shape model over conformed meshes.
     Model {
         #[command(subcommand)]
@@ -282,6 +326,40 @@ pub enum ModelCmd {
         /// also compute compactness, generalisation and specificity (slower)
         #[arg(long)]
         quality: bool,
+        /// the meshes are one subject in many postures: every mode is a posture mode
+        /// (for `measure --normalise-posture`)
+        #[arg(long)]
+        posture: bool,
+    },
+    /// Fit the weight regression: weights a station recorded (`id,kg` rows: capture id
+    /// or subject tag) against the measurements in the results' report.json; prints
+    /// its leave-one-out error. Name the file in `[measure] weight`.
+    Weigh {
+        /// the recorded weights
+        #[arg(long)]
+        fit: PathBuf,
+        /// the station's results folder
+        #[arg(long)]
+        results: PathBuf,
+        /// measurements to use, comma-separated (default: all)
+        #[arg(long, value_delimiter = ',')]
+        features: Option<Vec<String>>,
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// The posture model of a generic template: random postures of it (every pose
+    /// parameter within +/- --degrees), for `measure --normalise-posture`.
+    Posture {
+        kind: conformd::template::Kind,
+        /// the template's resolution: that of the results to be measured
+        #[arg(long, default_value_t = 10_000)]
+        vertices: usize,
+        #[arg(long, default_value_t = 60)]
+        postures: usize,
+        #[arg(long, default_value_t = 20.0)]
+        degrees: f64,
+        #[arg(long)]
+        out: PathBuf,
     },
     /// Mean and mean +/- k sigma along the first modes, as meshes and a PNG sheet.
     Modes {

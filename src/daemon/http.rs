@@ -28,6 +28,9 @@ pub fn router(shared: Arc<Shared>) -> Router {
     Router::new()
         .route("/", get(page))
         .route("/captures/{id}", get(capture_page))
+        .route("/subjects/{tag}", get(subject_page))
+        .route("/subjects/{tag}/history.png", get(subject_plot))
+        .route("/api/export.csv", get(export))
         .route("/healthz", get(|| async { "ok\n" }))
         .route("/metrics", get(metrics))
         .route("/api/status", get(status))
@@ -453,7 +456,7 @@ async fn page(Ctx(shared): Ctx<Arc<Shared>>) -> Api<Html<String>> {
             h,
             "<tr><td><a href=\"/captures/{id}\">{id}</a></td><td>{subj}</td><td class=\"{st}\">{st}</td><td>{att}</td><td>{total}</td><td>{thumb}</td><td>{err}</td></tr>",
             id = esc(&j.id),
-            subj = esc(j.subject.as_deref().unwrap_or("")),
+            subj = subject_link(j.subject.as_deref()),
             st = j.state.as_str(),
             att = j.attempts,
             err = esc(j.error.as_deref().unwrap_or(""))
@@ -493,7 +496,7 @@ async fn capture_page(Ctx(shared): Ctx<Arc<Shared>>, Path(id): Path<String>) -> 
         "state",
         format!("<span class=\"{0}\">{0}</span>", j.state.as_str()),
     );
-    row("subject", esc(j.subject.as_deref().unwrap_or("")));
+    row("subject", subject_link(j.subject.as_deref()));
     row("attempts", j.attempts.to_string());
     row("queued", when(Some(j.queued_at)));
     row("finished", when(j.finished_at));
@@ -533,8 +536,25 @@ async fn capture_page(Ctx(shared): Ctx<Arc<Shared>>, Path(id): Path<String>) -> 
         if let Some(s) = r.get("scores").filter(|s| !s.is_null()) {
             row("model scores (sd)", esc(&s["scores_sd"].to_string()));
         }
+        if let Some(w) = r.get("weight").filter(|w| !w.is_null()) {
+            row(
+                "weight",
+                format!(
+                    "{:.1} kg ({:.1} to {:.1})",
+                    w["kg"].as_f64().unwrap_or(f64::NAN),
+                    w["low"].as_f64().unwrap_or(f64::NAN),
+                    w["high"].as_f64().unwrap_or(f64::NAN)
+                ),
+            );
+        }
+        if let Some(e) = r["measurement_error"].as_str() {
+            row("measurements", esc(e));
+        }
     }
     h.push_str("</table>");
+    if let Some(r) = &d.report {
+        h.push_str(&measurement_table(r));
+    }
     if j.state == State::Done {
         let _ = write!(
             h,
@@ -544,4 +564,154 @@ async fn capture_page(Ctx(shared): Ctx<Arc<Shared>>, Path(id): Path<String>) -> 
     }
     h.push_str("</body></html>");
     Ok(Html(h))
+}
+
+/// A link to a subject's page (an RFID tag or the id a trigger named).
+fn subject_link(subject: Option<&str>) -> String {
+    match subject {
+        Some(s) if crate::paths::check_plain_name("subject", s).is_ok() => {
+            format!("<a href=\"/subjects/{0}\">{0}</a>", esc(s))
+        }
+        Some(s) => esc(s),
+        None => String::new(),
+    }
+}
+
+/// A result's measurements as an HTML table: raw and, when taken, posture-free.
+fn measurement_table(r: &serde_json::Value) -> String {
+    let Some(raw) = r["measurements"].as_array() else {
+        return String::new();
+    };
+    let normalised = r["measurements_normalised"].as_array();
+    let mut h = String::from(
+        "<h2>Measurements</h2><table id=\"measurements\"><tr><th>measurement</th><th>value</th><th>posture removed</th><th>unit</th></tr>",
+    );
+    for m in raw {
+        let name = m["name"].as_str().unwrap_or("");
+        let n = normalised
+            .and_then(|ns| ns.iter().find(|x| x["name"].as_str() == Some(name)))
+            .and_then(|x| x["value"].as_f64())
+            .map_or(String::new(), |v| format!("{v:.4}"));
+        let _ = write!(
+            h,
+            "<tr><td>{}</td><td>{:.4}</td><td>{}</td><td>{}</td></tr>",
+            esc(name),
+            m["value"].as_f64().unwrap_or(f64::NAN),
+            n,
+            esc(m["unit"].as_str().unwrap_or(""))
+        );
+    }
+    h.push_str("</table>");
+    h
+}
+
+/// The finished results of one subject, oldest first, with their reports.
+fn subject_results(shared: &Shared, tag: &str) -> Api<Vec<(Job, serde_json::Value)>> {
+    crate::paths::check_plain_name("subject", tag)
+        .map_err(|e| ApiError(StatusCode::BAD_REQUEST, e))?;
+    let mut jobs: Vec<Job> = shared
+        .journal()
+        .list(Some(State::Done), 100_000)
+        .map_err(internal)?
+        .into_iter()
+        .filter(|j| j.subject.as_deref() == Some(tag))
+        .collect();
+    jobs.sort_by(|a, b| a.queued_at.total_cmp(&b.queued_at));
+    Ok(jobs
+        .into_iter()
+        .filter_map(|j| {
+            let r = j.result.as_ref()?.join("report.json");
+            let v = serde_json::from_slice(&std::fs::read(r).ok()?).ok()?;
+            Some((j, v))
+        })
+        .collect())
+}
+
+async fn subject_page(Ctx(shared): Ctx<Arc<Shared>>, Path(tag): Path<String>) -> Api<Html<String>> {
+    let results = subject_results(&shared, &tag)?;
+    if results.is_empty() {
+        return Err(ApiError(
+            StatusCode::NOT_FOUND,
+            format!("subject '{tag}' has no finished result"),
+        ));
+    }
+    let mut h = String::new();
+    let _ = write!(
+        h,
+        "<!doctype html><html><head><meta charset=\"utf-8\"><title>{t}</title><style>{STYLE}</style></head><body><p><a href=\"/\">station</a></p><h1>Subject {t}</h1><p><img id=\"history\" src=\"/subjects/{t}/history.png\" width=\"800\" alt=\"history\"></p><table><tr><th>capture</th><th>finished</th><th>weight (kg)</th></tr>",
+        t = esc(&tag)
+    );
+    for (j, r) in &results {
+        let _ = write!(
+            h,
+            "<tr><td><a href=\"/captures/{id}\">{id}</a></td><td>{when}</td><td>{w}</td></tr>",
+            id = esc(&j.id),
+            when = when(j.finished_at),
+            w = r["weight"]["kg"]
+                .as_f64()
+                .map_or(String::new(), |v| format!("{v:.1}"))
+        );
+    }
+    h.push_str("</table><p><a href=\"/api/export.csv\">all results (CSV)</a></p></body></html>");
+    Ok(Html(h))
+}
+
+async fn subject_plot(Ctx(shared): Ctx<Arc<Shared>>, Path(tag): Path<String>) -> Api<Response> {
+    let results = subject_results(&shared, &tag)?;
+    let t0 = results.first().map_or(0.0, |(j, _)| j.queued_at);
+    let mut series: Vec<crate::render::plot::Series> = Vec::new();
+    let mut add = |name: &str, unit: &str, t: f64, v: f64| {
+        let x = (t - t0) / 86_400.0;
+        match series.iter_mut().find(|s| s.name == name) {
+            Some(s) => s.points.push((x, v)),
+            None => series.push(crate::render::plot::Series {
+                name: name.into(),
+                unit: unit.into(),
+                points: vec![(x, v)],
+            }),
+        }
+    };
+    for (j, r) in &results {
+        if let Some(kg) = r["weight"]["kg"].as_f64() {
+            add("weight", "kg", j.queued_at, kg);
+        }
+        // posture-free when taken: the measurement of the animal, not of its stance
+        let ms = r["measurements_normalised"]
+            .as_array()
+            .or(r["measurements"].as_array());
+        for m in ms.into_iter().flatten() {
+            if let (Some(n), Some(u), Some(v)) =
+                (m["name"].as_str(), m["unit"].as_str(), m["value"].as_f64())
+            {
+                add(n, u, j.queued_at, v);
+            }
+        }
+    }
+    let title = format!("subject {tag}");
+    let png = tokio::task::spawn_blocking(move || {
+        crate::render::plot::history_png(&title, &series, 900, 700)
+    })
+    .await
+    .map_err(internal)?
+    .map_err(internal)?;
+    Ok(([(header::CONTENT_TYPE, "image/png")], png).into_response())
+}
+
+async fn export(Ctx(shared): Ctx<Arc<Shared>>) -> Api<Response> {
+    let dir = shared.results_dir();
+    let csv = tokio::task::spawn_blocking(move || crate::station::export::export_csv(&dir))
+        .await
+        .map_err(internal)?
+        .map_err(internal)?;
+    Ok((
+        [
+            (header::CONTENT_TYPE, "text/csv; charset=utf-8"),
+            (
+                header::CONTENT_DISPOSITION,
+                "attachment; filename=\"results.csv\"",
+            ),
+        ],
+        csv,
+    )
+        .into_response())
 }

@@ -5,6 +5,7 @@
 
 mod conformation;
 mod demo;
+mod measure;
 mod rig;
 mod shapes;
 mod station;
@@ -12,6 +13,7 @@ mod stereo;
 
 pub use conformation::*;
 pub use demo::*;
+pub use measure::*;
 pub use rig::*;
 pub use shapes::*;
 pub use station::*;

@@ -41,6 +41,10 @@ pub enum ModelError {
     #[error("{path}: not a valid shape model: {msg}")]
     File { path: String, msg: String },
     #[error(
+        "the model has no posture modes: build one with `conformd model posture` (a generic template) or `model build --posture` (one subject in many postures)"
+    )]
+    NoPosture,
+    #[error(
         "the {samples} meshes are one shape (no variance beyond rounding): a model needs different subjects or postures"
     )]
     NoVariance { samples: usize },
@@ -79,6 +83,8 @@ pub struct BuildOptions {
     pub group: Option<String>,
     /// modes kept at most
     pub max_modes: usize,
+    /// the samples are one subject in many postures: every mode is a posture mode
+    pub posture: bool,
 }
 
 impl Default for BuildOptions {
@@ -87,6 +93,7 @@ impl Default for BuildOptions {
             align: Align::Procrustes,
             group: None,
             max_modes: 30,
+            posture: false,
         }
     }
 }
@@ -115,6 +122,10 @@ pub struct ShapeModel {
     /// share of the total variance each mode explains
     pub explained: Vec<f64>,
     pub total_variance: f64,
+    /// the leading modes that are changes of posture, not of shape: all of a model built
+    /// from one subject in many postures (`model posture`, `model build --posture`)
+    #[serde(default)]
+    pub posture_modes: usize,
 }
 
 /// Stable 64-bit FNV-1a of the vertex count and triangles (a model file outlives builds,
@@ -352,7 +363,43 @@ impl ShapeModel {
             variances,
             modes,
             total_variance: total,
+            posture_modes: if opts.posture { keep.len() } else { 0 },
         })
+    }
+
+    /// `mesh` with its posture removed: aligned to the mean as the samples were, its
+    /// components along the posture modes taken out, and moved back where it was (at its
+    /// own size: the shape and the size stay, the posture goes). Modes are linear, so a
+    /// posture is removed to first order: the larger the turn, the more is left.
+    pub fn remove_posture(&self, name: &str, mesh: &Mesh) -> Result<Mesh, ModelError> {
+        if self.posture_modes == 0 {
+            return Err(ModelError::NoPosture);
+        }
+        let score = self.score(name, mesh)?;
+        let pts: Vec<V3> = self
+            .indices
+            .iter()
+            .map(|&i| mesh.vertices[i as usize])
+            .collect();
+        let t = match self.align {
+            Align::None => Similarity::default(),
+            a => fit_similarity(&pts, &self.mean_shape(), None, a == Align::Procrustes),
+        };
+        let inverse = t.inverse();
+        let mut out = mesh.clone();
+        for (k, &i) in self.indices.iter().enumerate() {
+            let mut p = t.apply(&pts[k]);
+            for (m, &b) in self
+                .modes
+                .iter()
+                .zip(&score.scores)
+                .take(self.posture_modes)
+            {
+                p -= V3::new(m[3 * k] as f64, m[3 * k + 1] as f64, m[3 * k + 2] as f64) * b;
+            }
+            out.vertices[i as usize] = inverse.apply(&p);
+        }
+        Ok(out)
     }
 
     pub fn mean_shape(&self) -> Vec<V3> {

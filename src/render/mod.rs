@@ -4,6 +4,7 @@
 //! no window, so it runs on a headless station.
 
 mod font;
+pub mod plot;
 pub mod raster;
 
 use crate::mesh::{Mesh, V3};

@@ -1,5 +1,5 @@
 //! The station file: one typed, checked reader for every section (`[station]`,
-//! `[template]`, `[conform]`, `[rig]`, `[capture]`, `[[cameras]]`, `[trigger]`, `[model]`,
+//! `[template]`, `[conform]`, `[rig]`, `[capture]`, `[[cameras]]`, `[trigger]`, `[model]`, `[measure]`,
 //! `[daemon]`). Paths are taken relative to the file; unknown keys are refused with their
 //! line; every problem is collected, not just the first. `config/station.example.toml`
 //! shows every key.
@@ -65,6 +65,32 @@ pub struct ModelSection {
     pub rebuild_every: usize,
 }
 
+/// `[measure]`: measurements of every result (`measure` definitions; README).
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct MeasureSection {
+    /// measurement definitions (TOML); a generic template brings its own
+    pub definitions: Option<PathBuf>,
+    /// also measure every result with its posture removed: a generic template's pose
+    /// fitted and undone, or `posture_model`'s posture modes taken out
+    pub normalise_posture: bool,
+    /// a model with posture modes (`conformd model posture` / `model build --posture`)
+    pub posture_model: Option<PathBuf>,
+    /// a weight regression (`conformd model weigh`): every result gets a predicted weight
+    pub weight: Option<PathBuf>,
+}
+
+impl Default for MeasureSection {
+    fn default() -> Self {
+        MeasureSection {
+            definitions: None,
+            normalise_posture: true,
+            posture_model: None,
+            weight: None,
+        }
+    }
+}
+
 /// `[daemon]`: how the station service runs.
 #[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -114,6 +140,7 @@ pub struct StationConfig {
     pub cameras: Vec<CameraSection>,
     pub trigger: Option<TriggerSection>,
     pub model: ModelSection,
+    pub measure: MeasureSection,
     pub daemon: DaemonSection,
 }
 
@@ -155,8 +182,9 @@ impl std::fmt::Display for ConfigError {
     }
 }
 
-const SECTIONS: [&str; 9] = [
-    "station", "template", "conform", "rig", "capture", "cameras", "trigger", "model", "daemon",
+const SECTIONS: [&str; 10] = [
+    "station", "template", "conform", "rig", "capture", "cameras", "trigger", "model", "measure",
+    "daemon",
 ];
 
 /// True when a TOML table is a station file (it has one of the station's sections)
@@ -284,6 +312,7 @@ impl StationConfig {
         let cameras: Vec<CameraSection> = read!("cameras", Vec<CameraSection>).unwrap_or_default();
         let trigger = read!("trigger", TriggerSection);
         let model: ModelSection = read!("model", ModelSection).unwrap_or_default();
+        let measure: MeasureSection = read!("measure", MeasureSection).unwrap_or_default();
         let daemon: DaemonSection = read!("daemon", DaemonSection).unwrap_or_default();
 
         // what the types cannot check
@@ -379,6 +408,7 @@ impl StationConfig {
             cameras,
             trigger,
             model,
+            measure,
             daemon,
         };
         cfg.resolve_paths();
@@ -408,6 +438,13 @@ impl StationConfig {
             c.replay.iter_mut().flatten().for_each(abs);
         }
         self.model.file.iter_mut().for_each(abs);
+        for p in [
+            &mut self.measure.definitions,
+            &mut self.measure.posture_model,
+            &mut self.measure.weight,
+        ] {
+            p.iter_mut().for_each(abs);
+        }
     }
 
     /// The rig part, for capture sessions: `[capture]`, `[trigger]`, `[[cameras]]`.

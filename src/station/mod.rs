@@ -4,6 +4,7 @@
 //! but the stage timings.
 
 pub mod config;
+pub mod export;
 pub mod pipeline;
 
 pub use config::{ConfigError, StationConfig};

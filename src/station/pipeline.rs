@@ -5,6 +5,8 @@
 //! and whether the capture (permanent) or the machine (retryable) is at fault.
 
 use crate::conform::{self, ConformError, ConformOptions, ConformReport, IterationReport};
+use crate::measure::weight::{WeightModel, WeightPrediction};
+use crate::measure::{Definitions, Measurement, PostureRemoval, Resolved};
 use crate::mesh::io::{sync_dir, write_synced};
 use crate::mesh::{Landmark, Mesh};
 use crate::model::{ModelError, Score, ShapeModel};
@@ -110,6 +112,8 @@ pub enum PipelineError {
     Rig(#[from] RigError),
     #[error(transparent)]
     Model(#[from] ModelError),
+    #[error("{0}")]
+    Measure(String),
 }
 
 /// What a long stage reports while it runs.
@@ -159,6 +163,18 @@ pub struct ProcessReport {
     pub conformation: ConformReport,
     /// against the station's current model, when it has one
     pub scores: Option<Score>,
+    /// the template's measurements of the result (`[measure]`), when it has definitions
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub measurements: Option<Vec<Measurement>>,
+    /// the same with the result's posture removed
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub measurements_normalised: Option<Vec<Measurement>>,
+    /// from the station's weight regression (`[measure] weight`)
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub weight: Option<WeightPrediction>,
+    /// why a measurement could not be taken (the capture is still processed)
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub measurement_error: Option<String>,
     pub seconds: StageSeconds,
 }
 
@@ -193,8 +209,14 @@ impl std::fmt::Display for ProcessReport {
                 s.mahalanobis
             )?;
         }
+        if let Some(w) = &self.weight {
+            write!(f, "; weight {:.1} kg ({:.1}-{:.1})", w.kg, w.low, w.high)?;
+        }
         if let Some(w) = &c.distortion_warning {
             write!(f, "\nwarning: {w}")?;
+        }
+        if let Some(e) = &self.measurement_error {
+            write!(f, "\nmeasurements: {e}")?;
         }
         Ok(())
     }
@@ -336,6 +358,107 @@ pub struct Pipeline {
     /// scans as meshes with holes instead of point clouds
     pub as_mesh: bool,
     model: Arc<RwLock<Option<Arc<ShapeModel>>>>,
+    measuring: Option<Measuring>,
+}
+
+/// What the station measures on every result (`[measure]`).
+struct Measuring {
+    resolved: Resolved,
+    posture: Option<PostureRemoval>,
+    weight: Option<WeightModel>,
+}
+
+impl Measuring {
+    /// Definitions from `[measure]` or the generic template's own; none for a template
+    /// mesh without a definitions file (nothing is measured, as before).
+    fn from_config(
+        cfg: &StationConfig,
+        source: &crate::template::TemplateSource,
+        template: &Mesh,
+        landmarks: Option<&[Landmark]>,
+    ) -> Result<Option<Measuring>, PipelineError> {
+        let m = &cfg.measure;
+        let bad = |what: &str, e: String| PipelineError::Measure(format!("{what}: {e}"));
+        let defs = match (&m.definitions, source.generic) {
+            (Some(p), _) => {
+                Definitions::read(p).map_err(|e| bad("[measure] definitions", e.to_string()))?
+            }
+            (None, Some(crate::template::Kind::Pig)) => {
+                Definitions::parse(crate::measure::PIG, "pig")
+                    .map_err(|e| bad("pig", e.to_string()))?
+            }
+            (None, Some(crate::template::Kind::Body)) => {
+                Definitions::parse(crate::measure::BODY, "body")
+                    .map_err(|e| bad("body", e.to_string()))?
+            }
+            (None, None) => return Ok(None),
+        };
+        let resolved = defs
+            .resolve(template, landmarks.unwrap_or(&[]))
+            .map_err(|e| bad("[measure] definitions", e.to_string()))?;
+        let posture = match (&m.posture_model, source.generic, m.normalise_posture) {
+            (_, _, false) => None,
+            (Some(p), _, true) => Some(PostureRemoval::Model(Box::new(ShapeModel::load(p)?))),
+            (None, Some(kind), true) => Some(PostureRemoval::Skeleton(
+                Box::new(crate::template::build(
+                    kind,
+                    source.vertices.unwrap_or(10_000),
+                )),
+                kind,
+            )),
+            (None, None, true) => None,
+        };
+        let weight = m
+            .weight
+            .as_ref()
+            .map(|p| WeightModel::load(p))
+            .transpose()
+            .map_err(|e| bad("[measure] weight", e.to_string()))?;
+        Ok(Some(Measuring {
+            resolved,
+            posture,
+            weight,
+        }))
+    }
+
+    /// Raw and posture-free measurements and the weight; a failure is reported, not
+    /// fatal: the conformed result stands without them.
+    fn run(&self, id: &str, mesh: &Mesh) -> MeasuredResult {
+        let mut out = MeasuredResult::default();
+        let raw = match self.resolved.measure(mesh) {
+            Ok(r) => r,
+            Err(e) => {
+                out.error = Some(e.to_string());
+                return out;
+            }
+        };
+        if let Some(p) = &self.posture {
+            match p
+                .apply(id, mesh)
+                .and_then(|n| self.resolved.measure(&n).map_err(|e| e.to_string()))
+            {
+                Ok(n) => out.normalised = Some(n),
+                Err(e) => out.error = Some(format!("posture not removed: {e}")),
+            }
+        }
+        if let Some(w) = &self.weight {
+            // posture-free measurements when there are
+            match w.predict(out.normalised.as_deref().unwrap_or(&raw)) {
+                Ok(p) => out.weight = Some(p),
+                Err(e) => out.error = Some(format!("no weight: {e}")),
+            }
+        }
+        out.raw = Some(raw);
+        out
+    }
+}
+
+#[derive(Default)]
+struct MeasuredResult {
+    raw: Option<Vec<Measurement>>,
+    normalised: Option<Vec<Measurement>>,
+    weight: Option<WeightPrediction>,
+    error: Option<String>,
 }
 
 impl Pipeline {
@@ -349,6 +472,8 @@ impl Pipeline {
             .as_ref()
             .ok_or(PipelineError::NoTemplate(name))?;
         let (template, template_landmarks) = source.load()?;
+        let measuring =
+            Measuring::from_config(cfg, source, &template, template_landmarks.as_deref())?;
         let reconstruction = Reconstruction::load(&rig.file, rig.calibration.as_deref())?;
         let model = match &cfg.model.file {
             Some(p) if p.exists() => Some(Arc::new(ShapeModel::load(p)?)),
@@ -362,6 +487,7 @@ impl Pipeline {
             reconstruction,
             as_mesh: rig.mesh,
             model: Arc::new(RwLock::new(model)),
+            measuring,
         })
     }
 
@@ -461,6 +587,11 @@ impl Pipeline {
             .map(|m| m.score(&id, &conformed.mesh))
             .transpose()
             .map_err(|e| StageError::new(Stage::Score, &id, e.into()))?;
+        let measured = self
+            .measuring
+            .as_ref()
+            .map(|m| m.run(&id, &conformed.mesh))
+            .unwrap_or_default();
         seconds.score = t.elapsed().as_secs_f64();
 
         let t = Instant::now();
@@ -477,6 +608,10 @@ impl Pipeline {
                 reconstruction,
                 conformation: conformed.report,
                 scores,
+                measurements: measured.raw,
+                measurements_normalised: measured.normalised,
+                weight: measured.weight,
+                measurement_error: measured.error,
                 seconds,
             },
             id,

@@ -463,8 +463,9 @@ pub struct Pose {
 }
 
 impl Figure {
-    /// Vertex positions in `pose`; same order as the rest mesh.
-    pub fn pose(&self, pose: &Pose) -> Vec<V3> {
+    /// Each bone's transform in `pose` (joint rotations only), composed down the
+    /// hierarchy: `x -> R x + t`.
+    fn bone_transforms(&self, pose: &Pose) -> Vec<(Rotation3<f64>, V3)> {
         let bones = &self.skeleton.bones;
         // bone transforms: rotation about its joint, composed down the hierarchy
         let mut xf: Vec<(Rotation3<f64>, V3)> = Vec::with_capacity(bones.len());
@@ -483,6 +484,33 @@ impl Figure {
             let t = pr * (b.head - local * b.head) + pt;
             xf.push((r, t));
         }
+        xf
+    }
+
+    /// Takes the joint rotations of `pose` out of positions `x` (the template's vertex
+    /// order): every vertex goes through the inverse of its blended bone transform, so
+    /// a posed template comes back to its rest shape, and a subject of another shape
+    /// keeps its shape in the rest posture.
+    pub fn unpose(&self, pose: &Pose, x: &[V3]) -> Vec<V3> {
+        let xf = self.bone_transforms(pose);
+        x.iter()
+            .zip(&self.weights)
+            .map(|(p, w)| {
+                let (a, t) = w.iter().fold(
+                    (nalgebra::Matrix3::zeros(), V3::zeros()),
+                    |(a, t), &(b, wt)| {
+                        let (r, tb) = &xf[b as usize];
+                        (a + r.matrix() * wt, t + tb * wt)
+                    },
+                );
+                a.try_inverse().map_or(*p, |ai| ai * (p - t))
+            })
+            .collect()
+    }
+
+    /// Vertex positions in `pose`; same order as the rest mesh.
+    pub fn pose(&self, pose: &Pose) -> Vec<V3> {
+        let xf = self.bone_transforms(pose);
         let (lo, hi) = self.mesh.bounding_box().unwrap_or_default();
         let height = (hi.z - lo.z).max(1e-9);
         let scale = if pose.scale > 0.0 { pose.scale } else { 1.0 };

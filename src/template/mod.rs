@@ -487,3 +487,120 @@ pub fn subject(
     m.vertices = reshaped.pose(pose);
     Ok(m)
 }
+
+/// `n` postures of a generic template, every pose parameter drawn uniformly within
+/// +/- `degrees` (seeded: the same call gives the same postures). What a posture model
+/// of the template is built from (`conformd model posture`).
+pub fn random_postures(kind: Kind, n: usize, degrees: f64, seed: u64) -> Vec<Pose> {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let names: Vec<&str> = pose_parameters(kind).iter().map(|p| p.0).collect();
+    (0..n)
+        .map(|_| {
+            let params: BTreeMap<String, f64> = names
+                .iter()
+                .map(|&k| (k.to_string(), rng.random_range(-degrees..=degrees)))
+                .collect();
+            pose(kind, &params)
+        })
+        .collect()
+}
+
+/// The posture of a result of a generic template: the pose parameters (degrees) and the
+/// rigid placement that best explain its vertices, and what is left unexplained (RMS).
+#[derive(Debug, Clone)]
+pub struct PostureFit {
+    pub params: BTreeMap<String, f64>,
+    pub placement: crate::mesh::transform::Similarity,
+    pub rms: f64,
+}
+
+/// Fits the pose parameters of `kind` (Gauss-Newton over the joint angles, the rigid
+/// placement refitted in closed form at every step) to `x`, a result of `fig` in any
+/// place. Angles stay within [`POSE_DEGREES`].
+pub fn fit_posture(fig: &Figure, kind: Kind, x: &[V3]) -> PostureFit {
+    use crate::mesh::transform::fit_similarity;
+    let names: Vec<&str> = pose_parameters(kind).iter().map(|p| p.0).collect();
+    let k = names.len();
+    let at = |theta: &[f64]| -> Vec<V3> {
+        let params: BTreeMap<String, f64> = names
+            .iter()
+            .zip(theta)
+            .map(|(n, &d)| (n.to_string(), d))
+            .collect();
+        fig.pose(&pose(kind, &params))
+    };
+    let mut theta = vec![0.0; k];
+    let mut placement = Default::default();
+    let mut rms = f64::INFINITY;
+    for _ in 0..20 {
+        let p = at(&theta);
+        placement = fit_similarity(&p, x, None, false);
+        let inv = placement.inverse();
+        let y: Vec<V3> = x.iter().map(|q| inv.apply(q)).collect();
+        let r: Vec<V3> = p.iter().zip(&y).map(|(a, b)| a - b).collect();
+        rms = (r.iter().map(|v| v.norm_squared()).sum::<f64>() / r.len() as f64).sqrt();
+        // numeric Jacobian columns, half a degree apart
+        let h = 0.5;
+        let cols: Vec<Vec<V3>> = (0..k)
+            .map(|j| {
+                let mut t = theta.clone();
+                t[j] += h;
+                at(&t).iter().zip(&p).map(|(a, b)| (a - b) / h).collect()
+            })
+            .collect();
+        let mut jtj = nalgebra::DMatrix::<f64>::zeros(k, k);
+        let mut jtr = nalgebra::DVector::<f64>::zeros(k);
+        for a in 0..k {
+            for b in a..k {
+                let v: f64 = cols[a].iter().zip(&cols[b]).map(|(u, w)| u.dot(w)).sum();
+                jtj[(a, b)] = v;
+                jtj[(b, a)] = v;
+            }
+            jtr[a] = cols[a].iter().zip(&r).map(|(u, w)| u.dot(w)).sum();
+        }
+        // a little damping keeps parameters the shape cannot see (a hidden tail) still
+        let damping = 1e-6 * (0..k).map(|i| jtj[(i, i)]).fold(0.0, f64::max);
+        for i in 0..k {
+            jtj[(i, i)] += damping;
+        }
+        let Some(step) = jtj.cholesky().map(|c| c.solve(&(-jtr))) else {
+            break;
+        };
+        for (t, s) in theta.iter_mut().zip(step.iter()) {
+            *t = (*t + s).clamp(*POSE_DEGREES.start(), *POSE_DEGREES.end());
+        }
+        if step.amax() < 0.01 {
+            break;
+        }
+    }
+    PostureFit {
+        params: names
+            .iter()
+            .zip(&theta)
+            .map(|(n, &d)| (n.to_string(), d))
+            .collect(),
+        placement,
+        rms,
+    }
+}
+
+/// A result of generic template `fig` with its posture removed: its pose fitted
+/// ([`fit_posture`]) and taken out joint by joint, then put back where it stood. Its
+/// shape (and size) stay.
+pub fn remove_posture(fig: &Figure, kind: Kind, mesh: &Mesh) -> Result<(Mesh, PostureFit), String> {
+    if mesh.vertices.len() != fig.mesh.vertices.len() {
+        return Err(format!(
+            "the mesh has {} vertices, the template {}: not a result of this template",
+            mesh.vertices.len(),
+            fig.mesh.vertices.len()
+        ));
+    }
+    let fit = fit_posture(fig, kind, &mesh.vertices);
+    let inv = fit.placement.inverse();
+    let local: Vec<V3> = mesh.vertices.iter().map(|q| inv.apply(q)).collect();
+    let rest = fig.unpose(&pose(kind, &fit.params), &local);
+    let mut out = mesh.clone();
+    out.vertices = rest.iter().map(|q| fit.placement.apply(q)).collect();
+    Ok((out, fit))
+}

@@ -1,0 +1,297 @@
+//! Measurements from the CLI: `conformd measure` (one conformed mesh, raw and with its
+//! posture removed) and `conformd model posture` (the posture model of a generic
+//! template).
+
+use super::JobError;
+use crate::measure::{Definitions, Measurement, PostureRemoval, Resolved};
+use crate::mesh;
+use crate::model::{Align, BuildOptions, ShapeModel};
+use crate::template::{self, Kind, TemplateSource};
+
+/// For `measure --normalise-posture`: the model when one is given, else the generic
+/// template's skeleton.
+pub fn posture_removal(
+    source: &TemplateSource,
+    model: Option<&Path>,
+) -> Result<PostureRemoval, JobError> {
+    match (model, source.generic) {
+        (Some(p), _) => Ok(PostureRemoval::Model(Box::new(ShapeModel::load(p)?))),
+        (None, Some(kind)) => Ok(PostureRemoval::Skeleton(
+            Box::new(template::build(kind, source.vertices.unwrap_or(10_000))),
+            kind,
+        )),
+        (None, None) => Err(JobError::Usage(
+            "--normalise-posture with a template mesh needs --model (a model with posture modes: `model build --posture`)"
+                .into(),
+        )),
+    }
+}
+use std::path::Path;
+
+/// One mesh's measurements; with a posture model also after its posture was removed.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct MeasureReport {
+    pub mesh: String,
+    pub measurements: Vec<Measurement>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub normalised: Option<Vec<Measurement>>,
+}
+
+/// The definitions a template is measured by: `definitions` when given, else the
+/// generic template's own.
+pub fn definitions_for(
+    source: &TemplateSource,
+    definitions: Option<&Path>,
+) -> Result<Definitions, JobError> {
+    let bad = |e: crate::measure::MeasureError| JobError::Usage(e.to_string());
+    match (definitions, source.generic) {
+        (Some(p), _) => Definitions::read(p).map_err(bad),
+        (None, Some(Kind::Pig)) => Definitions::parse(crate::measure::PIG, "pig").map_err(bad),
+        (None, Some(Kind::Body)) => Definitions::parse(crate::measure::BODY, "body").map_err(bad),
+        (None, None) => Err(JobError::Usage(
+            "a template mesh needs its measurement definitions (--definitions FILE; see config/measurements/)"
+                .into(),
+        )),
+    }
+}
+
+/// Loads the template and fixes the definitions on it.
+pub fn resolve_measurements(
+    source: &TemplateSource,
+    definitions: Option<&Path>,
+) -> Result<Resolved, JobError> {
+    let defs = definitions_for(source, definitions)?;
+    let (template, landmarks) = source.load()?;
+    defs.resolve(&template, landmarks.as_deref().unwrap_or(&[]))
+        .map_err(|e| JobError::Usage(e.to_string()))
+}
+
+/// Measures a conformed mesh; with `posture`, also with its posture removed.
+pub fn measure(
+    mesh_path: &Path,
+    resolved: &Resolved,
+    posture: Option<&PostureRemoval>,
+) -> Result<MeasureReport, JobError> {
+    let m = mesh::read_mesh(mesh_path)?;
+    measure_mesh(&mesh_path.display().to_string(), &m, resolved, posture)
+}
+
+pub fn measure_mesh(
+    name: &str,
+    m: &mesh::Mesh,
+    resolved: &Resolved,
+    posture: Option<&PostureRemoval>,
+) -> Result<MeasureReport, JobError> {
+    let bad = |e: crate::measure::MeasureError| JobError::Usage(format!("{name}: {e}"));
+    let measurements = resolved.measure(m).map_err(bad)?;
+    let normalised = match posture {
+        Some(p) => Some(
+            resolved
+                .measure(
+                    &p.apply(name, m)
+                        .map_err(|e| JobError::Usage(format!("{name}: {e}")))?,
+                )
+                .map_err(bad)?,
+        ),
+        None => None,
+    };
+    Ok(MeasureReport {
+        mesh: name.into(),
+        measurements,
+        normalised,
+    })
+}
+
+/// CSV of reports: one row per mesh, a column per measurement (and `<name>_normalised`).
+pub fn measurements_csv(reports: &[MeasureReport]) -> String {
+    let Some(first) = reports.first() else {
+        return String::new();
+    };
+    let mut header = vec!["mesh".to_string()];
+    header.extend(first.measurements.iter().map(|m| m.name.clone()));
+    if let Some(n) = &first.normalised {
+        header.extend(n.iter().map(|m| format!("{}_normalised", m.name)));
+    }
+    let mut s = header.join(",") + "\n";
+    for r in reports {
+        let mut row = vec![crate::station::export::csv_field(&r.mesh)];
+        row.extend(r.measurements.iter().map(|m| m.value.to_string()));
+        if let Some(n) = &r.normalised {
+            row.extend(n.iter().map(|m| m.value.to_string()));
+        }
+        s += &(row.join(",") + "\n");
+    }
+    s
+}
+
+/// The posture model of a generic template: `postures` random postures (every pose
+/// parameter within +/- `degrees`), every mode a posture mode; written to `out`.
+pub fn model_posture(
+    kind: Kind,
+    vertices: usize,
+    postures: usize,
+    degrees: f64,
+    out: &Path,
+) -> Result<ShapeModel, JobError> {
+    if !(3..=1000).contains(&postures) {
+        return Err(JobError::Usage(format!(
+            "--postures must be 3 to 1000, got {postures}"
+        )));
+    }
+    if !(degrees > 0.0 && template::POSE_DEGREES.contains(&degrees)) {
+        return Err(JobError::Usage(format!(
+            "--degrees must be above 0 and at most {}, got {degrees}",
+            template::POSE_DEGREES.end()
+        )));
+    }
+    let fig = template::build(kind, vertices);
+    let samples = template::random_postures(kind, postures, degrees, 1)
+        .iter()
+        .enumerate()
+        .map(|(i, p)| {
+            template::subject(&fig, kind, &Default::default(), p)
+                .map(|m| (format!("posture {i}"), m))
+                .map_err(JobError::Usage)
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    let model = ShapeModel::build(
+        &samples,
+        &BuildOptions {
+            align: Align::Rigid,
+            posture: true,
+            ..Default::default()
+        },
+    )?;
+    model.save(out)?;
+    Ok(model)
+}
+
+/// The measurements a result folder's `report.json` holds: the posture-free ones when
+/// there are, else the raw ones; with the capture's subject.
+pub fn result_measurements(dir: &Path) -> Result<(Option<String>, Vec<Measurement>), JobError> {
+    let path = dir.join("report.json");
+    let shown = path.display().to_string();
+    let text = mesh::io::read_text_limited(&path, 64 << 20)?;
+    let v: serde_json::Value = serde_json::from_str(&text).map_err(|e| JobError::Config {
+        path: shown.clone(),
+        msg: e.to_string(),
+    })?;
+    let pick = |key: &str| -> Option<Vec<Measurement>> {
+        v.get(key)
+            .and_then(|m| serde_json::from_value(m.clone()).ok())
+    };
+    let ms = pick("measurements_normalised")
+        .or_else(|| pick("measurements"))
+        .ok_or_else(|| JobError::Config {
+            path: shown,
+            msg: "has no measurements (a station measures when its template has definitions)"
+                .into(),
+        })?;
+    Ok((
+        v.get("subject").and_then(|s| s.as_str()).map(String::from),
+        ms,
+    ))
+}
+
+/// Reads `weights.csv` (`id,kg` rows: a capture id or a subject's tag; a header line
+/// is allowed): each row with its line.
+pub fn read_weights(path: &Path) -> Result<Vec<(String, f64)>, JobError> {
+    let shown = path.display().to_string();
+    let text = mesh::io::read_text_limited(path, 16 << 20)?;
+    let mut out = Vec::new();
+    for (i, line) in text.lines().enumerate() {
+        let line = line.trim();
+        if line.is_empty() || line.starts_with('#') {
+            continue;
+        }
+        let mut f = line.split(',').map(str::trim);
+        let (Some(id), Some(kg), None) = (f.next(), f.next(), f.next()) else {
+            return Err(JobError::Config {
+                path: shown,
+                msg: format!("line {}: expected `id,kg`, got '{line}'", i + 1),
+            });
+        };
+        match kg.parse::<f64>() {
+            Ok(kg) if kg.is_finite() && kg > 0.0 => out.push((id.to_string(), kg)),
+            _ if i == 0 => continue, // a header
+            _ => {
+                return Err(JobError::Config {
+                    path: shown,
+                    msg: format!("line {}: weight '{kg}' is not a positive number", i + 1),
+                });
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// `model weigh`: pairs every weighed id with the results of `results` (by capture id,
+/// else every result of that subject) and fits the weight regression on `features`
+/// (default: every measurement).
+pub fn model_weigh(
+    weights: &Path,
+    results: &Path,
+    features: Option<Vec<String>>,
+    out: &Path,
+) -> Result<crate::measure::weight::WeightModel, JobError> {
+    let weighed = read_weights(weights)?;
+    let mut all: Vec<(String, Option<String>, Vec<Measurement>)> = Vec::new();
+    let entries = std::fs::read_dir(results).map_err(|e| JobError::Io {
+        path: results.display().to_string(),
+        source: e,
+    })?;
+    let mut dirs: Vec<_> = entries
+        .flatten()
+        .map(|e| e.path())
+        .filter(|p| p.join("report.json").is_file())
+        .collect();
+    dirs.sort();
+    for d in dirs {
+        let id = d
+            .file_name()
+            .unwrap_or_default()
+            .to_string_lossy()
+            .to_string();
+        if let Ok((subject, ms)) = result_measurements(&d) {
+            all.push((id, subject, ms));
+        }
+    }
+    let mut samples = Vec::new();
+    for (id, kg) in &weighed {
+        let by_capture: Vec<_> = all.iter().filter(|(c, _, _)| c == id).collect();
+        let matched = if by_capture.is_empty() {
+            all.iter()
+                .filter(|(_, s, _)| s.as_deref() == Some(id.as_str()))
+                .collect()
+        } else {
+            by_capture
+        };
+        for (c, _, ms) in matched {
+            samples.push((c.clone(), ms.clone(), *kg));
+        }
+    }
+    let features = match features {
+        Some(f) => f,
+        None => samples
+            .first()
+            .map(|(_, ms, _)| ms.iter().map(|m| m.name.clone()).collect())
+            .unwrap_or_default(),
+    };
+    let model = crate::measure::weight::WeightModel::fit(&samples, &features)
+        .map_err(|e| JobError::Usage(e.to_string()))?;
+    mesh::io::write_atomic(
+        out,
+        serde_json::to_string_pretty(&model)
+            .expect("serialises")
+            .as_bytes(),
+    )?;
+    Ok(model)
+}
+
+/// `export`: all results as CSV (see [`crate::station::export::export_csv`]).
+pub fn export_csv(results: &Path) -> Result<String, JobError> {
+    crate::station::export::export_csv(results).map_err(|e| JobError::Io {
+        path: results.display().to_string(),
+        source: e,
+    })
+}

@@ -1,0 +1,624 @@
+//! Measurements of conformed meshes: definitions stored beside a template (a TOML file of
+//! named distances, paths, girths, widths, heights, areas and volumes, each fixed by
+//! template landmarks, vertices or template positions), checked once against the template
+//! and then taken on any mesh in the template's vertex order. Because every conformed
+//! scan has the template's vertices, a measurement defined once holds for all of them.
+
+use crate::mesh::{Landmark, LandmarkPos, Mesh, V3, topology};
+use std::collections::BTreeMap;
+use std::path::Path;
+
+pub mod weight;
+
+/// What went wrong with a definition file or a measurement, naming the measurement.
+#[derive(Debug, thiserror::Error)]
+pub enum MeasureError {
+    #[error("measurement definitions {path}: {message}")]
+    File { path: String, message: String },
+    #[error("measurement '{name}': {message}")]
+    Definition { name: String, message: String },
+    #[error("the mesh has {got} vertices, the template {expected}: not a result of this template")]
+    VertexCount { got: usize, expected: usize },
+}
+
+/// A place on the template: a landmark name, a vertex index, a position in template
+/// coordinates (its nearest vertex), or several of these (their centroid, e.g. the
+/// middle between two hips).
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(untagged)]
+pub enum Point {
+    Vertex(u32),
+    Landmark(String),
+    Position([f64; 3]),
+    Centroid(Vec<Point>),
+}
+
+/// One measurement's kind and the places that fix it.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum Kind {
+    /// straight distance between two points
+    Distance { from: Point, to: Point },
+    /// straight segments through a list of points (an arm over the elbow, a back)
+    Path { points: Vec<Point> },
+    /// shortest way along the mesh's edges (an overestimate of the true geodesic by up to
+    /// a few percent on coarse meshes)
+    Surface { from: Point, to: Point },
+    /// tape-measure perimeter (the convex hull, as a tape lies) of the mesh's section by
+    /// the plane through `at` square to the line `axis`; of the section's piece nearest
+    /// `at` (a leg cut by the same plane does not count)
+    Girth { at: Point, axis: [Point; 2] },
+    /// extent, along the line `across`, of the same section piece as a girth
+    Width {
+        at: Point,
+        axis: [Point; 2],
+        across: [Point; 2],
+    },
+    /// height of a point above the floor (see `Frame`)
+    Height { point: Point },
+    /// surface area (of the triangles of `group`, or of all)
+    Area {
+        #[serde(default)]
+        group: Option<String>,
+    },
+    /// enclosed volume; only for watertight templates
+    Volume,
+}
+
+/// A named measurement.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Definition {
+    pub name: String,
+    #[serde(flatten)]
+    pub kind: Kind,
+}
+
+/// The frame heights are measured in: the floor is the plane `up . x = floor`; lengths
+/// are in `unit` (the mesh's unit: metres in rig space).
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Frame {
+    pub up: [f64; 3],
+    pub floor: f64,
+    pub unit: String,
+}
+
+impl Default for Frame {
+    fn default() -> Self {
+        Frame {
+            up: [0.0, 0.0, 1.0],
+            floor: 0.0,
+            unit: "m".into(),
+        }
+    }
+}
+
+/// A definitions file: `[frame]` and `[[measurement]]` tables.
+#[derive(Debug, Clone, PartialEq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Definitions {
+    pub frame: Frame,
+    #[serde(rename = "measurement")]
+    pub measurements: Vec<Definition>,
+}
+
+/// The generic pig's measurements (x forward, z up, metres).
+pub const PIG: &str = include_str!("../../config/measurements/pig.toml");
+/// The generic body's measurements (ISO 8559-1 names).
+pub const BODY: &str = include_str!("../../config/measurements/body.toml");
+
+impl Definitions {
+    pub fn parse(text: &str, path: &str) -> Result<Definitions, MeasureError> {
+        toml::from_str(text).map_err(|e| MeasureError::File {
+            path: path.into(),
+            message: e.to_string(),
+        })
+    }
+
+    pub fn read(path: &Path) -> Result<Definitions, MeasureError> {
+        let shown = path.display().to_string();
+        let text =
+            crate::mesh::io::read_text_limited(path, 1 << 20).map_err(|e| MeasureError::File {
+                path: shown.clone(),
+                message: e.to_string(),
+            })?;
+        Definitions::parse(&text, &shown)
+    }
+
+    /// Checks every definition against the template and fixes its vertices.
+    pub fn resolve(
+        &self,
+        template: &Mesh,
+        landmarks: &[Landmark],
+    ) -> Result<Resolved, MeasureError> {
+        let up = V3::from(self.frame.up);
+        let up = up
+            .try_normalize(0.0)
+            .filter(|u| u.iter().all(|c| c.is_finite()))
+            .ok_or_else(|| MeasureError::File {
+                path: "[frame]".into(),
+                message: format!(
+                    "up must be a finite, non-zero direction, got {:?}",
+                    self.frame.up
+                ),
+            })?;
+        if !self.frame.floor.is_finite() {
+            return Err(MeasureError::File {
+                path: "[frame]".into(),
+                message: format!("floor must be a finite number, got {}", self.frame.floor),
+            });
+        }
+        let mut seen = std::collections::BTreeSet::new();
+        let mut out = Vec::new();
+        let watertight = topology::report(template).watertight;
+        for d in &self.measurements {
+            let err = |message: String| MeasureError::Definition {
+                name: d.name.clone(),
+                message,
+            };
+            if d.name.is_empty()
+                || !d
+                    .name
+                    .chars()
+                    .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-')
+            {
+                return Err(err(
+                    "a name must be letters, digits, '_' or '-' (it becomes a CSV column)".into(),
+                ));
+            }
+            if !seen.insert(d.name.clone()) {
+                return Err(err("named twice".into()));
+            }
+            let at = |p: &Point| resolve_point(p, template, landmarks).map_err(&err);
+            let kind = match &d.kind {
+                Kind::Distance { from, to } => Resolved1::Path(vec![at(from)?, at(to)?]),
+                Kind::Path { points } => {
+                    if points.len() < 2 {
+                        return Err(err("a path needs two points or more".into()));
+                    }
+                    Resolved1::Path(points.iter().map(&at).collect::<Result<_, _>>()?)
+                }
+                Kind::Surface { from, to } => Resolved1::Surface(at(from)?, at(to)?),
+                Kind::Girth { at: p, axis } => Resolved1::Section {
+                    at: at(p)?,
+                    axis: [at(&axis[0])?, at(&axis[1])?],
+                    across: None,
+                },
+                Kind::Width {
+                    at: p,
+                    axis,
+                    across,
+                } => Resolved1::Section {
+                    at: at(p)?,
+                    axis: [at(&axis[0])?, at(&axis[1])?],
+                    across: Some([at(&across[0])?, at(&across[1])?]),
+                },
+                Kind::Height { point } => Resolved1::Height(at(point)?),
+                Kind::Area { group } => Resolved1::Area(match group {
+                    None => None,
+                    Some(g) => {
+                        let members = template.groups.get(g).ok_or_else(|| {
+                            err(format!(
+                                "group '{g}' is not one of the template's ({})",
+                                template
+                                    .groups
+                                    .keys()
+                                    .cloned()
+                                    .collect::<Vec<_>>()
+                                    .join(", ")
+                            ))
+                        })?;
+                        let mut inside = vec![false; template.vertices.len()];
+                        for &v in members {
+                            inside[v as usize] = true;
+                        }
+                        Some(
+                            template
+                                .triangles
+                                .iter()
+                                .enumerate()
+                                .filter(|(_, t)| t.iter().all(|&v| inside[v as usize]))
+                                .map(|(i, _)| i as u32)
+                                .collect(),
+                        )
+                    }
+                }),
+                Kind::Volume => {
+                    if !watertight {
+                        return Err(err(
+                            "the template is not watertight (open or non-manifold): it encloses no volume"
+                                .into(),
+                        ));
+                    }
+                    Resolved1::Volume
+                }
+            };
+            if let Resolved1::Section { axis, .. } = &kind
+                && axis[0] == axis[1]
+            {
+                return Err(err("the axis' two points are the same vertex".into()));
+            }
+            out.push((d.name.clone(), d.kind.clone(), kind));
+        }
+        Ok(Resolved {
+            vertices: template.vertices.len(),
+            up,
+            floor: self.frame.floor,
+            unit: self.frame.unit.clone(),
+            items: out,
+        })
+    }
+}
+
+/// A point fixed on the template: the vertices whose centroid it is.
+type Fixed = Vec<u32>;
+
+fn resolve_point(p: &Point, template: &Mesh, landmarks: &[Landmark]) -> Result<Fixed, String> {
+    let n = template.vertices.len();
+    Ok(match p {
+        Point::Vertex(v) if (*v as usize) < n => vec![*v],
+        Point::Vertex(v) => {
+            return Err(format!("vertex {v}, but the template has {n} vertices"));
+        }
+        Point::Landmark(name) => {
+            let l = landmarks.iter().find(|l| &l.name == name).ok_or_else(|| {
+                format!(
+                    "landmark '{name}' is not one of the template's ({})",
+                    landmarks
+                        .iter()
+                        .map(|l| l.name.as_str())
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                )
+            })?;
+            match l.pos {
+                LandmarkPos::Vertex(v) if (v as usize) < n => vec![v],
+                LandmarkPos::Vertex(v) => {
+                    return Err(format!("landmark '{name}' names vertex {v} of {n}"));
+                }
+                LandmarkPos::Point(q) => vec![nearest(template, &q)],
+            }
+        }
+        Point::Position(q) => {
+            if !q.iter().all(|c| c.is_finite()) {
+                return Err(format!("position {q:?} is not finite"));
+            }
+            vec![nearest(template, &V3::from(*q))]
+        }
+        Point::Centroid(ps) => {
+            if ps.is_empty() {
+                return Err("an empty list of points".into());
+            }
+            let mut all = Vec::new();
+            for q in ps {
+                all.extend(resolve_point(q, template, landmarks)?);
+            }
+            all
+        }
+    })
+}
+
+fn nearest(m: &Mesh, q: &V3) -> u32 {
+    (0..m.vertices.len())
+        .min_by(|&a, &b| {
+            (m.vertices[a] - q)
+                .norm()
+                .total_cmp(&(m.vertices[b] - q).norm())
+        })
+        .unwrap_or(0) as u32
+}
+
+#[derive(Debug, Clone)]
+enum Resolved1 {
+    Path(Vec<Fixed>),
+    Surface(Fixed, Fixed),
+    Section {
+        at: Fixed,
+        axis: [Fixed; 2],
+        across: Option<[Fixed; 2]>,
+    },
+    Height(Fixed),
+    Area(Option<Vec<u32>>),
+    Volume,
+}
+
+/// Definitions fixed on one template, ready to measure its results.
+#[derive(Debug, Clone)]
+pub struct Resolved {
+    vertices: usize,
+    up: V3,
+    floor: f64,
+    unit: String,
+    items: Vec<(String, Kind, Resolved1)>,
+}
+
+/// One measured value.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Measurement {
+    pub name: String,
+    pub kind: String,
+    pub value: f64,
+    pub unit: String,
+}
+
+impl Resolved {
+    pub fn names(&self) -> Vec<String> {
+        self.items.iter().map(|(n, _, _)| n.clone()).collect()
+    }
+
+    /// Every measurement on `mesh` (the template's vertex order).
+    pub fn measure(&self, mesh: &Mesh) -> Result<Vec<Measurement>, MeasureError> {
+        if mesh.vertices.len() != self.vertices {
+            return Err(MeasureError::VertexCount {
+                got: mesh.vertices.len(),
+                expected: self.vertices,
+            });
+        }
+        let v = &mesh.vertices;
+        let place = |f: &Fixed| f.iter().map(|&i| v[i as usize]).sum::<V3>() / f.len() as f64;
+        let mut out = Vec::with_capacity(self.items.len());
+        for (name, kind, r) in &self.items {
+            let err = |message: String| MeasureError::Definition {
+                name: name.clone(),
+                message,
+            };
+            let (value, power) = match r {
+                Resolved1::Path(ps) => (
+                    ps.windows(2)
+                        .map(|w| (place(&w[1]) - place(&w[0])).norm())
+                        .sum(),
+                    1,
+                ),
+                Resolved1::Surface(a, b) => (edge_path(mesh, a[0], b[0]), 1),
+                Resolved1::Section { at, axis, across } => {
+                    let p = place(at);
+                    let normal = (place(&axis[1]) - place(&axis[0]))
+                        .try_normalize(0.0)
+                        .ok_or_else(|| err("the axis has no length on this mesh".into()))?;
+                    let piece = section_piece(mesh, &p, &normal)
+                        .ok_or_else(|| err("the plane does not cut the mesh".into()))?;
+                    match across {
+                        None => (hull_perimeter(&piece, &normal), 1),
+                        Some([a, b]) => {
+                            let d = place(b) - place(a);
+                            let d = (d - normal * normal.dot(&d))
+                                .try_normalize(0.0)
+                                .ok_or_else(|| {
+                                    err("the width's direction lies along the axis".into())
+                                })?;
+                            let (lo, hi) = piece
+                                .iter()
+                                .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), q| {
+                                    (lo.min(q.dot(&d)), hi.max(q.dot(&d)))
+                                });
+                            (hi - lo, 1)
+                        }
+                    }
+                }
+                Resolved1::Height(p) => (place(p).dot(&self.up) - self.floor, 1),
+                Resolved1::Area(tris) => (
+                    match tris {
+                        None => mesh.area(),
+                        Some(ts) => ts
+                            .iter()
+                            .map(|&t| 0.5 * mesh.face_normal_scaled(t as usize).norm())
+                            .sum(),
+                    },
+                    2,
+                ),
+                Resolved1::Volume => (volume(mesh), 3),
+            };
+            if !value.is_finite() {
+                return Err(err(format!("came out as {value} on this mesh")));
+            }
+            out.push(Measurement {
+                name: name.clone(),
+                kind: kind_name(kind).into(),
+                value,
+                unit: match power {
+                    1 => self.unit.clone(),
+                    p => format!("{}^{p}", self.unit),
+                },
+            });
+        }
+        Ok(out)
+    }
+}
+
+fn kind_name(k: &Kind) -> &'static str {
+    match k {
+        Kind::Distance { .. } => "distance",
+        Kind::Path { .. } => "path",
+        Kind::Surface { .. } => "surface",
+        Kind::Girth { .. } => "girth",
+        Kind::Width { .. } => "width",
+        Kind::Height { .. } => "height",
+        Kind::Area { .. } => "area",
+        Kind::Volume => "volume",
+    }
+}
+
+/// Enclosed volume by the divergence theorem (positive for outward-facing triangles).
+pub fn volume(m: &Mesh) -> f64 {
+    m.triangles
+        .iter()
+        .map(|t| {
+            let [a, b, c] = t.map(|i| m.vertices[i as usize]);
+            a.dot(&b.cross(&c)) / 6.0
+        })
+        .sum::<f64>()
+        .abs()
+}
+
+/// Shortest way from `a` to `b` along the mesh's edges (Dijkstra).
+fn edge_path(m: &Mesh, a: u32, b: u32) -> f64 {
+    use std::cmp::Reverse;
+    let nb = topology::vertex_neighbours(m.vertices.len(), &m.triangles);
+    let mut dist = vec![f64::INFINITY; m.vertices.len()];
+    let mut heap = std::collections::BinaryHeap::new();
+    dist[a as usize] = 0.0;
+    heap.push((Reverse(OrdF(0.0)), a));
+    while let Some((Reverse(OrdF(d)), i)) = heap.pop() {
+        if i == b {
+            return d;
+        }
+        if d > dist[i as usize] {
+            continue;
+        }
+        for &j in &nb[i as usize] {
+            let dj = d + (m.vertices[i as usize] - m.vertices[j as usize]).norm();
+            if dj < dist[j as usize] {
+                dist[j as usize] = dj;
+                heap.push((Reverse(OrdF(dj)), j));
+            }
+        }
+    }
+    f64::INFINITY
+}
+
+#[derive(Debug, PartialEq, Clone, Copy)]
+struct OrdF(f64);
+impl Eq for OrdF {}
+impl Ord for OrdF {
+    fn cmp(&self, o: &Self) -> std::cmp::Ordering {
+        self.0.total_cmp(&o.0)
+    }
+}
+impl PartialOrd for OrdF {
+    fn partial_cmp(&self, o: &Self) -> Option<std::cmp::Ordering> {
+        Some(self.cmp(o))
+    }
+}
+
+/// The points of the mesh's section by the plane through `p` with unit normal `n`, of
+/// the connected piece of the section nearest `p`. `None` when the plane misses.
+pub fn section_piece(m: &Mesh, p: &V3, n: &V3) -> Option<Vec<V3>> {
+    let d: Vec<f64> = m.vertices.iter().map(|v| (v - p).dot(n)).collect();
+    // each cut edge gives one point; a triangle cut by the plane joins two of them
+    let mut point_of: BTreeMap<(u32, u32), usize> = BTreeMap::new();
+    let mut points: Vec<V3> = Vec::new();
+    let mut links: Vec<(usize, usize)> = Vec::new();
+    let mut cut = |a: u32, b: u32, points: &mut Vec<V3>| -> usize {
+        let key = (a.min(b), a.max(b));
+        *point_of.entry(key).or_insert_with(|| {
+            let (da, db) = (d[a as usize], d[b as usize]);
+            let t = da / (da - db);
+            points.push(m.vertices[a as usize] * (1.0 - t) + m.vertices[b as usize] * t);
+            points.len() - 1
+        })
+    };
+    for t in &m.triangles {
+        let mut ends = Vec::with_capacity(2);
+        for k in 0..3 {
+            let (a, b) = (t[k], t[(k + 1) % 3]);
+            // an edge is cut when its ends lie strictly on two sides (a vertex exactly on
+            // the plane counts as above, so no point is found twice)
+            if (d[a as usize] >= 0.0) != (d[b as usize] >= 0.0) {
+                ends.push(cut(a, b, &mut points));
+            }
+        }
+        if ends.len() == 2 {
+            links.push((ends[0], ends[1]));
+        }
+    }
+    if points.is_empty() {
+        return None;
+    }
+    // pieces of the section: components over the links
+    let mut parent: Vec<usize> = (0..points.len()).collect();
+    fn find(p: &mut [usize], mut x: usize) -> usize {
+        while p[x] != x {
+            p[x] = p[p[x]];
+            x = p[x];
+        }
+        x
+    }
+    for (a, b) in links {
+        let (ra, rb) = (find(&mut parent, a), find(&mut parent, b));
+        if ra != rb {
+            parent[ra] = rb;
+        }
+    }
+    let nearest = (0..points.len())
+        .min_by(|&a, &b| (points[a] - p).norm().total_cmp(&(points[b] - p).norm()))?;
+    let root = find(&mut parent, nearest);
+    Some(
+        (0..points.len())
+            .filter(|&i| find(&mut parent, i) == root)
+            .map(|i| points[i])
+            .collect(),
+    )
+}
+
+/// Perimeter of the convex hull of points lying in a plane with unit normal `n`.
+pub fn hull_perimeter(points: &[V3], n: &V3) -> f64 {
+    let u = n
+        .cross(&if n.x.abs() < 0.9 { V3::x() } else { V3::y() })
+        .normalize();
+    let w = n.cross(&u);
+    let mut q: Vec<(f64, f64)> = points.iter().map(|p| (p.dot(&u), p.dot(&w))).collect();
+    q.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.total_cmp(&b.1)));
+    q.dedup();
+    if q.len() < 2 {
+        return 0.0;
+    }
+    let cross = |o: (f64, f64), a: (f64, f64), b: (f64, f64)| {
+        (a.0 - o.0) * (b.1 - o.1) - (a.1 - o.1) * (b.0 - o.0)
+    };
+    // Andrew's monotone chain
+    let mut hull: Vec<(f64, f64)> = Vec::with_capacity(2 * q.len());
+    for pass in 0..2 {
+        let start = hull.len();
+        let iter: Box<dyn Iterator<Item = &(f64, f64)>> = if pass == 0 {
+            Box::new(q.iter())
+        } else {
+            Box::new(q.iter().rev())
+        };
+        for &p in iter {
+            while hull.len() >= start + 2
+                && cross(hull[hull.len() - 2], hull[hull.len() - 1], p) <= 0.0
+            {
+                hull.pop();
+            }
+            hull.push(p);
+        }
+        hull.pop();
+    }
+    (0..hull.len())
+        .map(|i| {
+            let (a, b) = (hull[i], hull[(i + 1) % hull.len()]);
+            ((a.0 - b.0).powi(2) + (a.1 - b.1).powi(2)).sqrt()
+        })
+        .sum()
+}
+
+/// How a result's posture is taken out before it is measured again.
+pub enum PostureRemoval {
+    /// a generic template's own skeleton: its pose parameters fitted and undone
+    Skeleton(Box<crate::template::figure::Figure>, crate::template::Kind),
+    /// the posture modes of a model (`model posture`, `model build --posture`)
+    Model(Box<crate::model::ShapeModel>),
+}
+
+impl PostureRemoval {
+    /// `m` with its posture removed (same vertex order, its shape and size kept).
+    pub fn apply(&self, name: &str, m: &Mesh) -> Result<Mesh, String> {
+        match self {
+            PostureRemoval::Model(model) => {
+                model.remove_posture(name, m).map_err(|e| e.to_string())
+            }
+            PostureRemoval::Skeleton(fig, kind) => {
+                crate::template::remove_posture(fig, *kind, m).map(|(m, _)| m)
+            }
+        }
+    }
+}
+
+/// Measurements as CSV rows `name,kind,value,unit`.
+pub fn to_csv(ms: &[Measurement]) -> String {
+    let mut s = String::from("name,kind,value,unit\n");
+    for m in ms {
+        s += &format!("{},{},{},{}\n", m.name, m.kind, m.value, m.unit);
+    }
+    s
+}
