@@ -452,42 +452,8 @@ pub fn volume(m: &Mesh) -> f64 {
 
 /// Shortest way from `a` to `b` along the mesh's edges (Dijkstra).
 fn edge_path(m: &Mesh, a: u32, b: u32) -> f64 {
-    use std::cmp::Reverse;
     let nb = topology::vertex_neighbours(m.vertices.len(), &m.triangles);
-    let mut dist = vec![f64::INFINITY; m.vertices.len()];
-    let mut heap = std::collections::BinaryHeap::new();
-    dist[a as usize] = 0.0;
-    heap.push((Reverse(OrdF(0.0)), a));
-    while let Some((Reverse(OrdF(d)), i)) = heap.pop() {
-        if i == b {
-            return d;
-        }
-        if d > dist[i as usize] {
-            continue;
-        }
-        for &j in &nb[i as usize] {
-            let dj = d + (m.vertices[i as usize] - m.vertices[j as usize]).norm();
-            if dj < dist[j as usize] {
-                dist[j as usize] = dj;
-                heap.push((Reverse(OrdF(dj)), j));
-            }
-        }
-    }
-    f64::INFINITY
-}
-
-#[derive(Debug, PartialEq, Clone, Copy)]
-struct OrdF(f64);
-impl Eq for OrdF {}
-impl Ord for OrdF {
-    fn cmp(&self, o: &Self) -> std::cmp::Ordering {
-        self.0.total_cmp(&o.0)
-    }
-}
-impl PartialOrd for OrdF {
-    fn partial_cmp(&self, o: &Self) -> Option<std::cmp::Ordering> {
-        Some(self.cmp(o))
-    }
+    topology::edge_distances(&m.vertices, &nb, &[a]).0[b as usize]
 }
 
 /// The points of the mesh's section by the plane through `p` with unit normal `n`, of

@@ -398,49 +398,15 @@ fn finish(mesh: &Mesh, s: &State) -> Decimated {
 }
 
 /// For every vertex, the coarse index of the nearest kept vertex along the original
-/// edges (multi-source Dijkstra).
+/// edges.
 fn nearest_kept(mesh: &Mesh, index: &[u32]) -> Vec<u32> {
-    #[derive(PartialEq)]
-    struct Item(f64, u32);
-    impl Eq for Item {}
-    impl Ord for Item {
-        fn cmp(&self, o: &Self) -> Ordering {
-            o.0.total_cmp(&self.0)
-        }
-    }
-    impl PartialOrd for Item {
-        fn partial_cmp(&self, o: &Self) -> Option<Ordering> {
-            Some(self.cmp(o))
-        }
-    }
-    let n = mesh.vertices.len();
-    let nb = super::topology::vertex_neighbours(n, &mesh.triangles);
-    let mut dist = vec![f64::INFINITY; n];
-    let mut owner = vec![u32::MAX; n];
-    let mut heap = BinaryHeap::new();
-    for i in 0..n {
-        if index[i] != u32::MAX {
-            dist[i] = 0.0;
-            owner[i] = index[i];
-            heap.push(Item(0.0, i as u32));
-        }
-    }
-    while let Some(Item(d, i)) = heap.pop() {
-        let i = i as usize;
-        if d > dist[i] {
-            continue;
-        }
-        for &j in &nb[i] {
-            let j = j as usize;
-            let dj = d + (mesh.vertices[i] - mesh.vertices[j]).norm();
-            if dj < dist[j] {
-                dist[j] = dj;
-                owner[j] = owner[i];
-                heap.push(Item(dj, j as u32));
-            }
-        }
-    }
-    owner
+    let kept: Vec<u32> = (0..index.len() as u32)
+        .filter(|&i| index[i as usize] != u32::MAX)
+        .collect();
+    let nb = super::topology::vertex_neighbours(mesh.vertices.len(), &mesh.triangles);
+    let (_, nearest) = super::topology::edge_distances(&mesh.vertices, &nb, &kept);
+    // kept vertices are numbered in order, so the k-th source is coarse vertex k
+    nearest
 }
 
 #[cfg(test)]

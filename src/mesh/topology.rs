@@ -164,6 +164,55 @@ pub fn bridges(v: &[crate::mesh::V3], tris: &[[u32; 3]], radius: f64) -> Vec<[u3
     out
 }
 
+/// Distances along the mesh's edges from the nearest of `sources` (multi-source
+/// Dijkstra), and which source is nearest (its index in `sources`). Vertices no source
+/// reaches stay at infinity with `u32::MAX`.
+pub fn edge_distances(
+    vertices: &[crate::mesh::V3],
+    neighbours: &[Vec<u32>],
+    sources: &[u32],
+) -> (Vec<f64>, Vec<u32>) {
+    use std::cmp::Ordering;
+    #[derive(PartialEq)]
+    struct Item(f64, u32);
+    impl Eq for Item {}
+    impl Ord for Item {
+        fn cmp(&self, o: &Self) -> Ordering {
+            o.0.total_cmp(&self.0)
+        }
+    }
+    impl PartialOrd for Item {
+        fn partial_cmp(&self, o: &Self) -> Option<Ordering> {
+            Some(self.cmp(o))
+        }
+    }
+    let n = vertices.len();
+    let mut dist = vec![f64::INFINITY; n];
+    let mut nearest = vec![u32::MAX; n];
+    let mut heap = std::collections::BinaryHeap::new();
+    for (k, &s) in sources.iter().enumerate() {
+        dist[s as usize] = 0.0;
+        nearest[s as usize] = k as u32;
+        heap.push(Item(0.0, s));
+    }
+    while let Some(Item(d, i)) = heap.pop() {
+        let i = i as usize;
+        if d > dist[i] {
+            continue;
+        }
+        for &j in &neighbours[i] {
+            let j = j as usize;
+            let dj = d + (vertices[i] - vertices[j]).norm();
+            if dj < dist[j] {
+                dist[j] = dj;
+                nearest[j] = nearest[i];
+                heap.push(Item(dj, j as u32));
+            }
+        }
+    }
+    (dist, nearest)
+}
+
 /// A summary of a mesh's topology, as the CLI and tests report it.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct TopologyReport {

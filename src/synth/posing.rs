@@ -8,42 +8,11 @@ use crate::mesh::{Mesh, V3};
 use nalgebra::{Rotation3, Unit};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use std::cmp::Ordering;
-use std::collections::BinaryHeap;
 
 /// Geodesic distances along the mesh's edges from `source` (Dijkstra); vertices of other
 /// components stay at infinity.
 pub fn edge_distances(mesh: &Mesh, neighbours: &[Vec<u32>], source: u32) -> Vec<f64> {
-    #[derive(PartialEq)]
-    struct Item(f64, u32);
-    impl Eq for Item {}
-    impl Ord for Item {
-        fn cmp(&self, o: &Self) -> Ordering {
-            o.0.total_cmp(&self.0)
-        }
-    }
-    impl PartialOrd for Item {
-        fn partial_cmp(&self, o: &Self) -> Option<Ordering> {
-            Some(self.cmp(o))
-        }
-    }
-    let mut d = vec![f64::INFINITY; mesh.vertices.len()];
-    let mut heap = BinaryHeap::new();
-    d[source as usize] = 0.0;
-    heap.push(Item(0.0, source));
-    while let Some(Item(dv, v)) = heap.pop() {
-        if dv > d[v as usize] {
-            continue;
-        }
-        for &w in &neighbours[v as usize] {
-            let nd = dv + (mesh.vertices[v as usize] - mesh.vertices[w as usize]).norm();
-            if nd < d[w as usize] {
-                d[w as usize] = nd;
-                heap.push(Item(nd, w));
-            }
-        }
-    }
-    d
+    crate::mesh::topology::edge_distances(&mesh.vertices, neighbours, &[source]).0
 }
 
 /// The body's centre vertex and its extremities: farthest-point samples over geodesic
