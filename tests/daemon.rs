@@ -829,7 +829,10 @@ fn the_status_page_shows_the_latest_capture_and_its_preview_in_a_browser() {
     }
     let dom = String::from_utf8_lossy(&out.stdout);
     assert!(
-        dom.contains("Latest result") && dom.contains("page-2") && dom.contains("latest-preview"),
+        dom.contains("Latest result")
+            && dom.contains("page-2")
+            && dom.contains("latest-preview")
+            && dom.contains("/api/export.csv"),
         "the page in the browser: {dom}\nChromium said: {}",
         String::from_utf8_lossy(&out.stderr)
     );

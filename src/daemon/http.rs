@@ -476,7 +476,7 @@ async fn page(Ctx(shared): Ctx<Arc<Shared>>) -> Api<Html<String>> {
         }
         h.push_str("</ul>");
     }
-    h.push_str("<p><a href=\"/api/status\">status (JSON)</a> · <a href=\"/metrics\">metrics</a></p></body></html>");
+    h.push_str("<p><a href=\"/api/status\">status (JSON)</a> · <a href=\"/api/export.csv\">all results (CSV)</a> · <a href=\"/metrics\">metrics</a></p></body></html>");
     Ok(Html(h))
 }
 
