@@ -308,19 +308,7 @@ fn a_user_mesh_or_a_generic_template_named_in_a_config() {
     assert!(out.status.success());
     let subject = conformd::mesh::read_mesh(&d.join("subject.ply")).unwrap();
     let lms = conformd::mesh::read_landmarks(&d.join("subject.landmarks")).unwrap();
-    let pts: Vec<conformd::mesh::Landmark> = lms
-        .iter()
-        .map(|l| match l.pos {
-            conformd::mesh::LandmarkPos::Vertex(v) => conformd::mesh::Landmark {
-                name: l.name.clone(),
-                pos: conformd::mesh::LandmarkPos::Point(subject.vertices[v as usize]),
-            },
-            p => conformd::mesh::Landmark {
-                name: l.name.clone(),
-                pos: p,
-            },
-        })
-        .collect();
+    let pts = conformd::synth::cases::landmarks_on(&lms, &subject);
     std::fs::write(d.join("scan.landmarks"), landmarks_text(&pts)).unwrap();
     std::fs::write(
         d.join("station.toml"),

@@ -6,9 +6,9 @@
 
 use conformd::conform::{ConformOptions, conform};
 use conformd::measure::{Definitions, Measurement, hull_perimeter, section_piece, volume};
-use conformd::mesh::{Landmark, LandmarkPos, Mesh, V3};
+use conformd::mesh::{Landmark, Mesh, V3};
 use conformd::model::{Align, BuildOptions, ShapeModel};
-use conformd::synth::cases::scan_subject;
+use conformd::synth::cases::{landmarks_on, scan_subject};
 use conformd::template::{self, Kind};
 use std::collections::BTreeMap;
 use std::f64::consts::PI;
@@ -273,19 +273,7 @@ fn the_generic_pig_measured_on_conformed_scans_matches_the_truth_and_loses_its_p
     for (k, pose) in postures().iter().enumerate() {
         let truth = template::subject(&fig, Kind::Pig, &BTreeMap::new(), pose).unwrap();
         let (scan, _) = scan_subject(&truth, &[0.0, 90.0, 180.0, 270.0], 80_000, 0.0003, k as u64);
-        // landmarks where the truth has them, as a station's operator would click them
-        let scan_lms: Vec<Landmark> = lms
-            .iter()
-            .map(|l| {
-                let LandmarkPos::Vertex(v) = l.pos else {
-                    unreachable!()
-                };
-                Landmark {
-                    name: l.name.clone(),
-                    pos: LandmarkPos::Point(truth.vertices[v as usize]),
-                }
-            })
-            .collect();
+        let scan_lms = landmarks_on(&lms, &truth);
         let r = conform(
             &fig.mesh,
             &scan,

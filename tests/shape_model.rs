@@ -2,7 +2,6 @@
 //! scanning and conformation, and body shapes from known shape parameters.
 
 use conformd::conform::{ConformOptions, conform};
-use conformd::mesh::landmarks::{Landmark, LandmarkPos};
 use conformd::mesh::{Mesh, V3};
 use conformd::model::{Align, BuildOptions, ShapeModel, quality};
 use conformd::synth::cases;
@@ -46,18 +45,7 @@ fn pig_postures_are_recovered_through_scanning_and_conformation() {
             templates::subject(&fig, kind, &BTreeMap::new(), &templates::pose(kind, &p)).unwrap();
         // a crate: cameras at both sides and one overhead
         let (scan, _) = cases::scan_subject(&subject, &[90.0, -90.0], 30_000, 0.001, i as u64);
-        let scan_lms: Vec<Landmark> = lms
-            .iter()
-            .map(|l| {
-                let LandmarkPos::Vertex(v) = l.pos else {
-                    unreachable!()
-                };
-                Landmark {
-                    name: l.name.clone(),
-                    pos: LandmarkPos::Point(subject.vertices[v as usize]),
-                }
-            })
-            .collect();
+        let scan_lms = cases::landmarks_on(&lms, &subject);
         let r = conform(
             &fig.mesh,
             &scan,

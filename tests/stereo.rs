@@ -4,7 +4,6 @@
 
 use conformd::conform::correspond::ScanSurface;
 use conformd::conform::{ConformOptions, conform};
-use conformd::mesh::landmarks::{Landmark, LandmarkPos};
 use conformd::mesh::{Mesh, V3, read_mesh};
 use conformd::stereo::rig::RigFile;
 use conformd::synth::scanner;
@@ -110,19 +109,7 @@ fn conform_error(scan: &Mesh, truth: &Mesh) -> f64 {
         "the simulated pig is this template posed"
     );
     let lms = fig.landmarks();
-    let scan_lms: Vec<Landmark> = lms
-        .iter()
-        .map(|l| match l.pos {
-            LandmarkPos::Vertex(v) => Landmark {
-                name: l.name.clone(),
-                pos: LandmarkPos::Point(truth.vertices[v as usize]),
-            },
-            p => Landmark {
-                name: l.name.clone(),
-                pos: p,
-            },
-        })
-        .collect();
+    let scan_lms = conformd::synth::cases::landmarks_on(&lms, truth);
     let r = conform(
         &fig.mesh,
         scan,

@@ -668,12 +668,7 @@ pub fn conform_cancellable(
     {
         return Err(ConformError::Options(format!(
             "stiffness names group '{g}', which the template does not have (it has: {})",
-            template
-                .groups
-                .keys()
-                .cloned()
-                .collect::<Vec<_>>()
-                .join(", ")
+            template.group_names()
         )));
     }
     // The scan's search structures and the decimated template (which keeps the landmark

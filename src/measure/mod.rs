@@ -200,12 +200,7 @@ impl Definitions {
                         let members = template.groups.get(g).ok_or_else(|| {
                             err(format!(
                                 "group '{g}' is not one of the template's ({})",
-                                template
-                                    .groups
-                                    .keys()
-                                    .cloned()
-                                    .collect::<Vec<_>>()
-                                    .join(", ")
+                                template.group_names()
                             ))
                         })?;
                         let mut inside = vec![false; template.vertices.len()];

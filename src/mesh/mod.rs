@@ -43,6 +43,11 @@ impl Mesh {
         }
     }
 
+    /// The group names, comma-separated (for sentences naming what a mesh has).
+    pub fn group_names(&self) -> String {
+        self.groups.keys().cloned().collect::<Vec<_>>().join(", ")
+    }
+
     pub fn is_point_cloud(&self) -> bool {
         self.triangles.is_empty()
     }

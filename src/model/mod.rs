@@ -265,7 +265,7 @@ impl ShapeModel {
                 .cloned()
                 .ok_or_else(|| ModelError::NoGroup {
                     group: g.clone(),
-                    known: first.groups.keys().cloned().collect::<Vec<_>>().join(", "),
+                    known: first.group_names(),
                 })?,
             None => (0..first.vertices.len() as u32).collect(),
         };

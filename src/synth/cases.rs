@@ -365,3 +365,19 @@ pub fn correspondence_error(
         flipped: crate::mesh::quality::flipped_against(result, truth, tris),
     }
 }
+
+/// Template landmarks placed on a subject in the template's vertex order (a posed truth):
+/// each vertex landmark becomes the subject's point there, as an operator would click it
+/// on the scan; point landmarks stay.
+pub fn landmarks_on(landmarks: &[Landmark], subject: &Mesh) -> Vec<Landmark> {
+    landmarks
+        .iter()
+        .map(|l| Landmark {
+            name: l.name.clone(),
+            pos: match l.pos {
+                LandmarkPos::Vertex(v) => LandmarkPos::Point(subject.vertices[v as usize]),
+                p => p,
+            },
+        })
+        .collect()
+}
