@@ -373,13 +373,14 @@ impl Measuring {
     /// mesh without a definitions file (nothing is measured, as before).
     fn from_config(
         cfg: &StationConfig,
-        source: &crate::template::TemplateSource,
+        figure: Option<(crate::template::Kind, crate::template::figure::Figure)>,
         template: &Mesh,
         landmarks: Option<&[Landmark]>,
     ) -> Result<Option<Measuring>, PipelineError> {
         let m = &cfg.measure;
         let bad = |what: &str, e: String| PipelineError::Measure(format!("{what}: {e}"));
-        let defs = match (&m.definitions, source.generic) {
+        let kind = figure.as_ref().map(|(k, _)| *k);
+        let defs = match (&m.definitions, kind) {
             (Some(p), _) => {
                 Definitions::read(p).map_err(|e| bad("[measure] definitions", e.to_string()))?
             }
@@ -396,16 +397,10 @@ impl Measuring {
         let resolved = defs
             .resolve(template, landmarks.unwrap_or(&[]))
             .map_err(|e| bad("[measure] definitions", e.to_string()))?;
-        let posture = match (&m.posture_model, source.generic, m.normalise_posture) {
+        let posture = match (&m.posture_model, figure, m.normalise_posture) {
             (_, _, false) => None,
             (Some(p), _, true) => Some(PostureRemoval::Model(Box::new(ShapeModel::load(p)?))),
-            (None, Some(kind), true) => Some(PostureRemoval::Skeleton(
-                Box::new(crate::template::build(
-                    kind,
-                    source.vertices.unwrap_or(10_000),
-                )),
-                kind,
-            )),
+            (None, Some((kind, fig)), true) => Some(PostureRemoval::Skeleton(Box::new(fig), kind)),
             (None, None, true) => None,
         };
         let weight = m
@@ -471,9 +466,14 @@ impl Pipeline {
             .template
             .as_ref()
             .ok_or(PipelineError::NoTemplate(name))?;
-        let (template, template_landmarks) = source.load()?;
+        // a generic template's figure serves the template and the posture removal alike
+        let figure = source.figure()?;
+        let (template, template_landmarks) = match &figure {
+            Some((_, fig)) => (fig.mesh.clone(), Some(fig.landmarks())),
+            None => source.load()?,
+        };
         let measuring =
-            Measuring::from_config(cfg, source, &template, template_landmarks.as_deref())?;
+            Measuring::from_config(cfg, figure, &template, template_landmarks.as_deref())?;
         let reconstruction = Reconstruction::load(&rig.file, rig.calibration.as_deref())?;
         let model = match &cfg.model.file {
             Some(p) if p.exists() => Some(Arc::new(ShapeModel::load(p)?)),

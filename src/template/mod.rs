@@ -91,16 +91,23 @@ impl TemplateSource {
         }
     }
 
-    /// The template mesh (with groups) and its landmarks, if it has any.
-    pub fn load(&self) -> Result<(Mesh, Option<Vec<Landmark>>), FileError> {
+    /// A generic template's figure (mesh, skeleton, skin weights) with its kind; `None`
+    /// for a template mesh.
+    pub fn figure(&self) -> Result<Option<(Kind, Figure)>, FileError> {
         self.check()
             .map_err(|e| FileError::content("[template]", e))?;
+        Ok(self
+            .generic
+            .map(|kind| (kind, build(kind, self.vertices.unwrap_or(10_000)))))
+    }
+
+    /// The template mesh (with groups) and its landmarks, if it has any.
+    pub fn load(&self) -> Result<(Mesh, Option<Vec<Landmark>>), FileError> {
+        if let Some((_, fig)) = self.figure()? {
+            let lms = fig.landmarks();
+            return Ok((fig.mesh, Some(lms)));
+        }
         match (&self.generic, &self.mesh) {
-            (Some(kind), _) => {
-                let fig = build(*kind, self.vertices.unwrap_or(10_000));
-                let lms = fig.landmarks();
-                Ok((fig.mesh, Some(lms)))
-            }
             (None, Some(path)) => {
                 let mut m = crate::mesh::read_mesh(path)?;
                 if let Some(g) = &self.groups {
@@ -113,7 +120,7 @@ impl TemplateSource {
                     .transpose()?;
                 Ok((m, lms))
             }
-            (None, None) => unreachable!("checked"),
+            _ => unreachable!("checked: a generic template returned above"),
         }
     }
 }
