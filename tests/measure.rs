@@ -426,6 +426,17 @@ fn weights_are_recovered_from_measurements_with_cross_validated_error_under_4_pe
     let lines: Vec<&str> = csv.lines().collect();
     assert_eq!(lines.len(), 41);
     assert!(lines[0].contains(",volume,") && lines[1].starts_with("cap-00,tag-0,crate-t,"));
+    // a damaged regression file is refused, naming it
+    let bad = dir.path().join("bad.json");
+    std::fs::write(
+        &bad,
+        r#"{"format": "conformd-weight", "features": ["volume"]"#,
+    )
+    .unwrap();
+    let e = conformd::measure::weight::WeightModel::load(&bad)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("bad.json: not a weight regression"), "{e}");
     // a bad weights file names its line
     std::fs::write(&wpath, "id,kg\ntag-1,heavy\n").unwrap();
     let e = conformd::jobs::model_weigh(&wpath, &results, None, &out)
