@@ -358,7 +358,14 @@ pub fn polar_rotation(a: &Matrix3<f64>, mut q: UnitQuaternion<f64>) -> UnitQuate
         if angle < 1e-4 {
             break;
         }
-        q = UnitQuaternion::from_scaled_axis(omega.normalize() * angle.min(1.0)) * q;
+        q = if angle < 0.1 {
+            // small step: the first-order quaternion of the rotation by omega, renormalised,
+            // is the same step to 1e-4 relative and needs no sine or cosine
+            let dq = nalgebra::Quaternion::new(1.0, 0.5 * omega.x, 0.5 * omega.y, 0.5 * omega.z);
+            UnitQuaternion::new_normalize(dq * q.into_inner())
+        } else {
+            UnitQuaternion::from_scaled_axis(omega.normalize() * angle.min(1.0)) * q
+        };
     }
     q
 }

@@ -79,7 +79,7 @@ pub struct ConformFiles {
 pub fn conform_files(
     files: &ConformFiles,
     opts: &ConformOptions,
-    progress: &mut dyn FnMut(&IterationReport),
+    progress: &mut conform::Progress,
 ) -> Result<ConformReport, JobError> {
     let ext = files
         .out
@@ -150,7 +150,7 @@ pub struct DemoFigures {
 /// mesh and report into `out_dir`.
 pub fn demo_paper(
     out_dir: &Path,
-    progress: &mut dyn FnMut(Method, &IterationReport),
+    progress: &mut (dyn FnMut(Method, &IterationReport) + Send),
 ) -> Result<DemoSummary, JobError> {
     std::fs::create_dir_all(out_dir).map_err(|source| JobError::Io {
         path: out_dir.display().to_string(),

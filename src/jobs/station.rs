@@ -22,7 +22,7 @@ pub fn process(
     capture: &Path,
     config: &Path,
     out: &Path,
-    progress: &mut dyn FnMut(Progress),
+    progress: &mut (dyn FnMut(Progress) + Send),
 ) -> Result<(PathBuf, ProcessReport), JobError> {
     let cfg = StationConfig::load(config)?;
     let mut pipeline = Pipeline::from_config(&cfg)?;

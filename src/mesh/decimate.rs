@@ -66,20 +66,24 @@ impl Quadric {
     }
 }
 
-/// A vertex's cheapest collapse, valid while its stamp is unchanged (any change around
-/// it bumps the stamp and queues it afresh): one entry per vertex, not per half-edge.
+/// A vertex's cheapest collapse, valid while its stamp is unchanged (a change of that
+/// cost bumps the stamp and queues it afresh): one live entry per vertex, not per
+/// half-edge.
 #[derive(Debug, PartialEq)]
 struct Candidate {
     cost: f64,
     from: u32,
+    to: u32,
     stamp: u32,
+    /// when it was queued: equal costs (a flat, even region) go first come, first served
+    order: u64,
 }
 
 impl Eq for Candidate {}
 impl Ord for Candidate {
     fn cmp(&self, o: &Self) -> Ordering {
         // the cheapest first out of the max-heap
-        o.cost.total_cmp(&self.cost)
+        o.cost.total_cmp(&self.cost).then(o.order.cmp(&self.order))
     }
 }
 impl PartialOrd for Candidate {
@@ -105,6 +109,12 @@ struct State<'a> {
     faces: Vec<Vec<u32>>,
     quadric: Vec<Quadric>,
     stamp: Vec<u32>,
+    /// each vertex's cheapest collapse (cost, target) as last queued
+    best: Vec<(f64, u32)>,
+    /// vertices whose every collapse was refused: tried again when a neighbour collapses
+    waiting: Vec<bool>,
+    /// candidates queued so far
+    queued: u64,
     alive: Vec<bool>,
     /// never removed: protected, or on a non-manifold edge
     locked: Vec<bool>,
@@ -149,33 +159,75 @@ impl State<'_> {
         let mut t: Vec<(f64, u32)> = self
             .neighbours(u)
             .into_iter()
-            .filter(|&w| !self.boundary[u as usize] || self.shared_faces(u, w) == 1)
+            .filter(|&w| self.may_collapse_to(u, w))
             .map(|w| (self.cost(u, w), w))
             .collect();
         t.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
         t
     }
 
-    fn push(&mut self, heap: &mut BinaryHeap<Candidate>, u: u32) {
+    /// Whether `u` may collapse along its edge to `w`: a boundary vertex only along its
+    /// boundary.
+    fn may_collapse_to(&self, u: u32, w: u32) -> bool {
+        !self.locked[u as usize] && (!self.boundary[u as usize] || self.shared_faces(u, w) == 1)
+    }
+
+    fn enqueue(&mut self, heap: &mut BinaryHeap<Candidate>, u: u32, best: (f64, u32)) {
         self.stamp[u as usize] += 1;
-        if self.locked[u as usize] {
-            return;
+        self.best[u as usize] = best;
+        if best.0.is_finite() {
+            heap.push(Candidate {
+                cost: best.0,
+                from: u,
+                to: best.1,
+                stamp: self.stamp[u as usize],
+                order: self.queued,
+            });
+            self.queued += 1;
         }
-        let boundary = self.boundary[u as usize];
-        let mut best = f64::INFINITY;
-        for &f in &self.faces[u as usize] {
-            for w in self.tris[f as usize] {
-                if w != u && (!boundary || self.shared_faces(u, w) == 1) {
-                    best = best.min(self.cost(u, w));
+    }
+
+    /// Queues `u`'s cheapest collapse, all its edges priced afresh.
+    fn push(&mut self, heap: &mut BinaryHeap<Candidate>, u: u32) {
+        let mut best = (f64::INFINITY, u32::MAX);
+        if !self.locked[u as usize] {
+            let boundary = self.boundary[u as usize];
+            for &f in &self.faces[u as usize] {
+                let t = self.tris[f as usize];
+                let k = t.iter().position(|&w| w == u).unwrap_or(0);
+                // inside a consistently wound fan every neighbour follows u in exactly
+                // one triangle; a boundary vertex's last neighbour only precedes it
+                let next = t[(k + 1) % 3];
+                let prev = t[(k + 2) % 3];
+                for w in [next, prev].into_iter().take(if boundary { 2 } else { 1 }) {
+                    if w != u && (!boundary || self.shared_faces(u, w) == 1) {
+                        let c = self.cost(u, w);
+                        if c < best.0 {
+                            best = (c, w);
+                        }
+                    }
                 }
             }
         }
-        if best.is_finite() {
-            heap.push(Candidate {
-                cost: best,
-                from: u,
-                stamp: self.stamp[u as usize],
-            });
+        self.enqueue(heap, u, best);
+    }
+
+    /// After `u` collapsed into `v`: `v`'s quadric changed, so its own collapses and its
+    /// neighbours' collapses onto it are priced again; a neighbour's other edges keep
+    /// their cost, so it is queued again only when its best changes (or it was waiting).
+    fn requeue_after(&mut self, heap: &mut BinaryHeap<Candidate>, u: u32, v: u32) {
+        self.push(heap, v);
+        for w in self.neighbours(v) {
+            let (cost, to) = self.best[w as usize];
+            if to == u || to == v || self.waiting[w as usize] {
+                self.waiting[w as usize] = false;
+                self.push(heap, w);
+            } else if self.may_collapse_to(w, v) {
+                let c = self.cost(w, v);
+                if c < cost {
+                    self.enqueue(heap, w, (c, v));
+                }
+            }
         }
     }
 
@@ -322,6 +374,9 @@ pub fn decimate(mesh: &Mesh, target: usize, protected: &[u32]) -> Decimated {
         faces,
         quadric,
         stamp: vec![0; n],
+        best: vec![(f64::INFINITY, u32::MAX); n],
+        waiting: vec![false; n],
+        queued: 0,
         alive: vec![true; n],
         locked,
         boundary,
@@ -342,20 +397,21 @@ pub fn decimate(mesh: &Mesh, target: usize, protected: &[u32]) -> Decimated {
         }
         // the cheapest target that keeps the surface sound; none: u waits until its
         // neighbourhood changes
-        let Some(v) = s
-            .targets(u)
-            .into_iter()
-            .map(|(_, w)| w)
-            .find(|&w| s.allowed(u, w))
-        else {
+        let v = if s.allowed(u, c.to) {
+            Some(c.to)
+        } else {
+            s.targets(u)
+                .into_iter()
+                .map(|(_, w)| w)
+                .find(|&w| w != c.to && s.allowed(u, w))
+        };
+        let Some(v) = v else {
+            s.waiting[u as usize] = true;
             continue;
         };
         s.collapse(u, v);
         alive -= 1;
-        s.push(&mut heap, v);
-        for w in s.neighbours(v) {
-            s.push(&mut heap, w);
-        }
+        s.requeue_after(&mut heap, u, v);
     }
     finish(mesh, &s)
 }

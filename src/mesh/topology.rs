@@ -249,19 +249,10 @@ pub fn report(mesh: &Mesh) -> TopologyReport {
         .iter()
         .filter(|([a, b], c)| *c == 2 && (times(*a, *b) != 1 || times(*b, *a) != 1))
         .count();
-    let degenerate_triangles = tris
-        .iter()
-        .enumerate()
-        .filter(|(i, t)| {
-            t[0] == t[1]
-                || t[1] == t[2]
-                || t[0] == t[2]
-                || mesh.face_normal_scaled(*i).norm() == 0.0
-        })
-        .count();
+    let degenerate_triangles = degenerate_triangles(mesh);
     let (_, components) = components(mesh.vertices.len(), tris);
     let non_manifold_vertices = non_manifold_vertices(mesh.vertices.len(), tris);
-    TopologyReport {
+    let report = TopologyReport {
         non_manifold_vertices,
         vertices: mesh.vertices.len(),
         triangles: tris.len(),
@@ -270,13 +261,49 @@ pub fn report(mesh: &Mesh) -> TopologyReport {
         non_manifold_edges,
         inconsistent_edges,
         degenerate_triangles,
-        watertight: !tris.is_empty()
-            && boundary_edges == 0
-            && non_manifold_edges == 0
-            && inconsistent_edges == 0
-            && degenerate_triangles == 0
-            && non_manifold_vertices == 0,
+        watertight: false,
+    };
+    TopologyReport {
+        watertight: report.closed_manifold() && degenerate_triangles == 0,
+        ..report
     }
+}
+
+impl TopologyReport {
+    /// The report of a mesh with the same triangles as the one this report is of, moved:
+    /// only degeneracy depends on the positions (a conformed result is its template moved).
+    pub fn moved(&self, mesh: &Mesh) -> TopologyReport {
+        debug_assert_eq!(mesh.triangles.len(), self.triangles);
+        let degenerate_triangles = degenerate_triangles(mesh);
+        TopologyReport {
+            degenerate_triangles,
+            watertight: self.closed_manifold() && degenerate_triangles == 0,
+            ..self.clone()
+        }
+    }
+
+    /// Watertight but for degenerate triangles: a property of the triangles alone.
+    fn closed_manifold(&self) -> bool {
+        self.triangles > 0
+            && self.boundary_edges == 0
+            && self.non_manifold_edges == 0
+            && self.inconsistent_edges == 0
+            && self.non_manifold_vertices == 0
+    }
+}
+
+/// Triangles with a repeated corner or no area.
+fn degenerate_triangles(mesh: &Mesh) -> usize {
+    mesh.triangles
+        .iter()
+        .enumerate()
+        .filter(|(i, t)| {
+            t[0] == t[1]
+                || t[1] == t[2]
+                || t[0] == t[2]
+                || mesh.face_normal_scaled(*i).norm() == 0.0
+        })
+        .count()
 }
 
 /// Counts vertices whose link (the edges opposite them in their triangles) is not one

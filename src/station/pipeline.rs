@@ -126,7 +126,7 @@ pub enum Progress<'a> {
 #[derive(Default)]
 pub struct Control<'a> {
     pub cancel: Option<&'a AtomicBool>,
-    pub progress: Option<&'a mut dyn FnMut(Progress)>,
+    pub progress: Option<&'a mut (dyn FnMut(Progress) + Send)>,
 }
 
 impl Control<'_> {
