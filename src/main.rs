@@ -67,19 +67,25 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
             out,
             json,
             parent,
+            stage,
         } => {
             if let Some(pid) = parent {
                 cli::exit_with_parent(pid);
             }
             cli::crash_hook(&capture);
+            let write = if stage {
+                jobs::Write::Stage
+            } else {
+                jobs::Write::Publish
+            };
             if json {
-                let r = jobs::process(&capture, &config, &out, &mut |_| {});
-                let line = serde_json::to_string(&jobs::ProcessOutcome::of(&r));
+                let r = jobs::process(&capture, &config, &out, write, &mut |_| {});
+                let line = serde_json::to_string(&jobs::ProcessOutcome::of(&r, write));
                 println!("{}", line.expect("an outcome serialises"));
                 r?;
             } else {
                 let (pb, mut tick) = progress::pipeline(30);
-                let r = jobs::process(&capture, &config, &out, &mut tick);
+                let r = jobs::process(&capture, &config, &out, write, &mut tick);
                 pb.finish_and_clear();
                 let (dir, report) = r?;
                 println!("{report}\nwrote {}", dir.display());
@@ -88,6 +94,10 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
         Cmd::Daemon { config } => {
             let cfg = jobs::check(&config)?;
             conformd::daemon::run(cfg)?;
+        }
+        Cmd::Worker { config } => {
+            let cfg = jobs::check(&config)?;
+            conformd::daemon::worker::run(cfg)?;
         }
         Cmd::Demo {
             which: DemoKind::Station,

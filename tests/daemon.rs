@@ -4,7 +4,7 @@
 //! worker, and the API's refusals. Results, journal and API must agree; every capture is
 //! processed exactly once.
 
-use conformd::daemon::journal::{Journal, State};
+use conformd::daemon::journal::{self, Journal, State};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::sync::OnceLock;
@@ -257,7 +257,7 @@ fn results_in(results: &Path) -> (Vec<String>, Vec<String>) {
 }
 
 fn journal(dir: &Path) -> Journal {
-    Journal::open(&dir.join("data/journal.sqlite")).unwrap()
+    journal::open_sqlite(&dir.join("data/journal.sqlite"), &dir.join("data")).unwrap()
 }
 
 /// Peak resident memory (kB) of a process and its children, from /proc.
@@ -383,7 +383,7 @@ fn captures_fired_through_the_box_are_processed_and_the_api_agrees() {
         let (code, png) = daemon.get(&format!("/api/captures/{id}/preview.png"));
         assert!(code == 200 && png.len() > 1000);
     }
-    let j = journal(d);
+    let mut j = journal(d);
     assert_eq!(j.counts().unwrap().done, 5);
     // the model: rebuilt on request, then every result is scored against it
     let (code, _) = request("POST", &daemon.url("/api/model/rebuild"), None, None);
@@ -514,7 +514,7 @@ fn killed_at_any_point_and_restarted_every_capture_is_processed_exactly_once() {
     let daemon = Daemon::start(&cfg, port, &[]);
     daemon.wait_settled(n as u64, Duration::from_secs(120));
     drop(daemon);
-    let j = journal(d);
+    let mut j = journal(d);
     let jobs = j.list(None, 100).unwrap();
     assert_eq!(jobs.len(), n);
     for job in &jobs {
@@ -628,8 +628,8 @@ fn corrupt_sets_fail_with_their_reason_and_a_crashing_job_does_not_stop_the_daem
         std::fs::rename(e.path(), incoming.join(e.file_name())).unwrap();
     }
     daemon.wait_settled(7, Duration::from_secs(120));
-    let j = journal(d);
-    let state = |id: &str| j.get(id).unwrap().unwrap();
+    let mut j = journal(d);
+    let mut state = |id: &str| j.get(id).unwrap().unwrap();
     for i in 0..3 {
         assert_eq!(state(&format!("good-{i}")).state, State::Done);
     }

@@ -81,7 +81,8 @@ fn process_gives_what_reconstruct_then_conform_give() {
     let (sim, set) = simulated();
     let cfg = station_file(d, "");
     let results = d.join("results");
-    let (folder, report) = jobs::process(set, &cfg, &results, &mut |_| {}).unwrap();
+    let (folder, report) =
+        jobs::process(set, &cfg, &results, jobs::Write::Publish, &mut |_| {}).unwrap();
     let id = set.file_name().unwrap().to_string_lossy().to_string();
     assert_eq!(folder, results.join(&id));
     for f in RESULT_FILES {

@@ -74,11 +74,23 @@ pub enum Cmd {
         /// exit when this process is no longer the parent (the daemon's workers)
         #[arg(long, hide = true)]
         parent: Option<u32>,
+        /// leave the result complete under a hidden name in OUT and report it, for the
+        /// worker to publish once the journal says the job is still its own
+        #[arg(long, hide = true)]
+        stage: bool,
     },
     /// Run the station: capture on trigger, watch captures/ and incoming/, process every
     /// set once (journal, worker processes), serve the HTTP API and status page.
     Daemon {
         /// the station file
+        #[arg(long)]
+        config: PathBuf,
+    },
+    /// Run jobs from a journal shared by several machines ([journal] url = postgres://...)
+    /// on this one: claim, hold a lease, process as the daemon does, publish the result.
+    Worker {
+        /// a station file for this machine: [station] data (where it mounts the shared
+        /// storage), [journal], [template], [rig], [conform], [worker]
         #[arg(long)]
         config: PathBuf,
     },

@@ -8,10 +8,11 @@
 pub mod http;
 pub mod journal;
 mod rig;
+pub mod runner;
+pub mod worker;
 
-use crate::jobs::ProcessOutcome;
 use crate::station::StationConfig;
-use journal::{Journal, JournalError, State};
+use journal::{Journal, JournalError};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
@@ -70,6 +71,7 @@ pub struct Metrics {
     /// stage -> (bucket counts, sum, count)
     pub stages: BTreeMap<String, (Vec<u64>, f64, u64)>,
     pub jobs_started: u64,
+    pub jobs_done: u64,
     pub worker_crashes: u64,
     pub timeouts: u64,
 }
@@ -99,6 +101,15 @@ pub struct Shared {
     /// the `conformd` binary the workers run
     pub exe: PathBuf,
     pub journal: Mutex<Journal>,
+    /// this daemon's name as a worker in the journal (`<host>:daemon:<station>`)
+    pub worker_name: String,
+    /// the journal cannot be reached: since when and why (the station carries on
+    /// capturing; its captures are handed over when the journal is back)
+    pub journal_offline: Mutex<Option<(f64, String)>>,
+    /// capture sets in `captures/` waiting for the journal to be reachable
+    pub waiting_handover: Mutex<std::collections::BTreeSet<String>>,
+    /// capture ids the journal is known to have
+    known_ids: Mutex<std::collections::HashSet<String>>,
     /// something changed (a capture, a finished job, a request): scan and dispatch
     pub wake: tokio::sync::Notify,
     /// stop the running jobs now (the drain's time is up)
@@ -129,8 +140,92 @@ impl Shared {
     pub fn journal(&self) -> std::sync::MutexGuard<'_, Journal> {
         self.journal.lock().unwrap_or_else(|p| p.into_inner())
     }
+    /// Notes whether the last journal call worked (the status page says when it did not).
+    pub fn journal_result<T>(&self, r: Result<T, JournalError>) -> Option<T> {
+        let mut off = self
+            .journal_offline
+            .lock()
+            .unwrap_or_else(|p| p.into_inner());
+        match r {
+            Ok(v) => {
+                if off.take().is_some() {
+                    info!("the journal is reachable again");
+                }
+                Some(v)
+            }
+            Err(e) => {
+                if off.is_none() {
+                    error!("{e}; captures wait in captures/ until it is back");
+                    *off = Some((journal::now(), e.to_string()));
+                }
+                None
+            }
+        }
+    }
+    /// How the daemon's own jobs run.
+    pub fn job_spec(&self) -> runner::JobSpec {
+        runner::JobSpec {
+            exe: self.exe.clone(),
+            config: self.cfg.file.clone(),
+            results: self.results_dir(),
+            threads: std::thread::available_parallelism()
+                .map(|n| (n.get() / self.workers.max(1)).max(1))
+                .unwrap_or(1),
+            timeout: Duration::from_secs_f64(self.cfg.daemon.job_timeout_s),
+            max_attempts: self.cfg.daemon.max_attempts,
+        }
+    }
     pub fn uptime(&self) -> f64 {
         self.started.elapsed().as_secs_f64()
+    }
+}
+
+impl Shared {
+    fn new(
+        cfg: StationConfig,
+        exe: Option<PathBuf>,
+        journal: Journal,
+        worker_name: String,
+        workers: usize,
+        capture: Option<std::sync::mpsc::Sender<CaptureRequest>>,
+        rig: RigStatus,
+    ) -> Result<Arc<Shared>, DaemonError> {
+        let exe = match exe {
+            Some(e) => e,
+            None => std::env::current_exe().map_err(io_err(Path::new("conformd")))?,
+        };
+        info!(journal = %journal.describe(), worker = %worker_name, "journal open");
+        Ok(Arc::new(Shared {
+            exe,
+            journal: Mutex::new(journal),
+            worker_name,
+            journal_offline: Mutex::new(None),
+            waiting_handover: Default::default(),
+            known_ids: Default::default(),
+            wake: Default::default(),
+            abort: Default::default(),
+            stopping: AtomicBool::new(false),
+            running: Mutex::new(BTreeMap::new()),
+            workers,
+            metrics: Default::default(),
+            rig: Mutex::new(rig),
+            capture,
+            model_busy: AtomicBool::new(false),
+            model_error: Mutex::new(None),
+            since_rebuild: AtomicUsize::new(0),
+            started: Instant::now(),
+            cfg,
+        }))
+    }
+}
+
+/// Jobs at once: `n`, or for 0 half the machine's cores (at least one).
+fn half_the_cores(n: usize) -> usize {
+    match n {
+        0 => std::thread::available_parallelism()
+            .map(|n| n.get().div_ceil(2))
+            .unwrap_or(1),
+        n => n,
     }
 }
 
@@ -227,44 +322,24 @@ async fn serve(
     ] {
         std::fs::create_dir_all(&d).map_err(io_err(&d))?;
     }
-    let journal = Journal::open(&cfg.station.data.join("journal.sqlite"))?;
-    let exe = match exe {
-        Some(e) => e,
-        None => std::env::current_exe().map_err(io_err(Path::new("conformd")))?,
-    };
-    let workers = match cfg.daemon.workers {
-        0 => std::thread::available_parallelism()
-            .map(|n| n.get().div_ceil(2))
-            .unwrap_or(1),
-        n => n,
-    };
+    let journal = journal::open(cfg.journal.url.as_deref(), &cfg.station.data)?;
+    let worker_name = format!("{}:daemon:{}", journal::hostname(), cfg.station.name);
+    let workers = half_the_cores(cfg.daemon.workers);
     let (channel, rig_status) = rig::start(&cfg)?;
     let (capture, capture_rx) = match channel {
         Some((tx, rx)) => (Some(tx), Some(rx)),
         None => (None, None),
     };
-    let shared = Arc::new(Shared {
-        exe,
-        journal: Mutex::new(journal),
-        wake: Default::default(),
-        abort: Default::default(),
-        stopping: AtomicBool::new(false),
-        running: Mutex::new(BTreeMap::new()),
-        workers,
-        metrics: Default::default(),
-        rig: Mutex::new(rig_status),
-        capture,
-        model_busy: AtomicBool::new(false),
-        model_error: Mutex::new(None),
-        since_rebuild: AtomicUsize::new(0),
-        started: Instant::now(),
-        cfg,
-    });
+    let shared = Shared::new(cfg, exe, journal, worker_name, workers, capture, rig_status)?;
     if let Some(rx) = capture_rx {
         rig::spawn_capture_thread(shared.clone(), rx);
     }
     reconcile(&shared)?;
     scan(&shared);
+    tokio::spawn(heartbeats(shared.clone()));
+    if let Some(url) = shared.cfg.journal.url.clone() {
+        listen_for_work(shared.clone(), url);
+    }
 
     let addr = shared.cfg.daemon.listen.clone();
     let listener = tokio::net::TcpListener::bind(&addr)
@@ -360,9 +435,86 @@ async fn serve(
         }
     }
     drain(&shared).await;
+    let name = shared.worker_name.clone();
+    let gone = shared.journal().worker_gone(&name);
+    shared.journal_result(gone);
     let _ = server.await;
     info!("conformd daemon stopped");
     Ok(())
+}
+
+/// Every third of a lease: the leases of this daemon's running jobs are renewed, it
+/// says it is alive (the status page lists every worker), and jobs of workers whose lease
+/// ran out are queued again.
+async fn heartbeats(shared: Arc<Shared>) {
+    let lease = shared.cfg.journal.lease_s;
+    let started = journal::now();
+    let mut every = tokio::time::interval(Duration::from_secs_f64(lease / 3.0));
+    loop {
+        every.tick().await;
+        let running: Vec<String> = shared
+            .running
+            .lock()
+            .map(|r| r.keys().cloned().collect())
+            .unwrap_or_default();
+        let done = shared.metrics.lock().map(|m| m.jobs_done).unwrap_or(0);
+        let mut j = shared.journal();
+        if !running.is_empty()
+            && let Some(held) = shared.journal_result(j.renew(&shared.worker_name, lease))
+        {
+            for id in running.iter().filter(|id| !held.contains(id)) {
+                warn!(capture = %id, "this daemon lost its lease on the job; another worker may take it");
+            }
+        }
+        if shared.cfg.daemon.local_workers {
+            let me = journal::WorkerInfo {
+                name: shared.worker_name.clone(),
+                host: journal::hostname(),
+                pid: std::process::id(),
+                started_at: started,
+                heartbeat_at: journal::now(),
+                job: running.first().cloned(),
+                jobs_done: done,
+            };
+            let r = j.heartbeat(&me);
+            shared.journal_result(r);
+        }
+        let expired = j.expire_leases();
+        if let Some(ids) = shared.journal_result(expired) {
+            for id in &ids {
+                warn!(capture = %id, "its worker's lease ran out: queued again");
+            }
+            if !ids.is_empty() {
+                shared.wake.notify_one();
+            }
+        }
+    }
+}
+
+/// A PostgreSQL journal announces new work (other stations' captures, requeued jobs):
+/// a thread of its own listens and wakes the loop.
+fn listen_for_work(shared: Arc<Shared>, url: String) {
+    std::thread::spawn(move || {
+        let poll = Duration::from_secs_f64(shared.cfg.journal.poll_s);
+        let mut conn: Option<Journal> = None;
+        while !shared.stopping.load(Ordering::SeqCst) {
+            let c = match &mut conn {
+                Some(c) => c,
+                None => match journal::open(Some(&url), &shared.cfg.station.data) {
+                    Ok(c) => conn.insert(c),
+                    Err(_) => {
+                        std::thread::sleep(poll);
+                        continue;
+                    }
+                },
+            };
+            match c.wait_for_work(poll) {
+                Ok(true) => shared.wake.notify_one(),
+                Ok(false) => {}
+                Err(_) => std::thread::sleep(poll),
+            }
+        }
+    });
 }
 
 /// SIGTERM: nothing new starts; running jobs get `drain_s` to finish, then are stopped
@@ -385,9 +537,10 @@ async fn drain(shared: &Arc<Shared>) {
     }
 }
 
-/// At start-up: half-written results are removed; jobs that were running are queued
-/// again (their attempt counted); a job whose complete result exists is done, never
-/// redone.
+/// At start-up: half-written results are removed; the jobs this daemon was running
+/// when it stopped are queued again (their attempt counted), as are jobs of workers
+/// whose lease ran out; a queued job whose complete result is newer than its request is
+/// done, never redone.
 fn reconcile(shared: &Shared) -> Result<(), DaemonError> {
     let results = shared.results_dir();
     match crate::station::pipeline::remove_partial_results(&results) {
@@ -395,32 +548,43 @@ fn reconcile(shared: &Shared) -> Result<(), DaemonError> {
         Ok(_) => {}
         Err(e) => warn!("cleaning {}: {e}", results.display()),
     }
-    let j = shared.journal();
-    for job in j.running()? {
-        j.interrupted(&job.id)?;
-        info!(capture = %job.id, attempts = job.attempts, "interrupted job queued again");
+    let mut j = shared.journal();
+    for id in j.release(&shared.worker_name)? {
+        info!(capture = %id, "interrupted job queued again");
     }
-    for job in j.list(Some(State::Queued), usize::MAX)? {
+    for id in j.expire_leases()? {
+        info!(capture = %id, "its worker's lease ran out: queued again");
+    }
+    for job in j.list(Some(journal::State::Queued), usize::MAX)? {
         let dir = results.join(&job.id);
-        if let Some(seconds) = complete_result(&dir) {
-            j.done(&job.id, &dir, &seconds)?;
+        if let Some((seconds, written)) = complete_result(&dir)
+            && written >= job.queued_at
+            && j.adopt(&job.id, &dir, &seconds)?
+        {
             info!(capture = %job.id, "its complete result exists: done");
         }
     }
     Ok(())
 }
 
-/// The stage timings of a complete result folder, or None when it is not complete.
-fn complete_result(dir: &Path) -> Option<serde_json::Value> {
+/// The stage timings of a complete result folder and when it was written (Unix
+/// seconds), or None when it is not complete.
+fn complete_result(dir: &Path) -> Option<(serde_json::Value, f64)> {
     if !crate::station::pipeline::RESULT_FILES
         .iter()
         .all(|f| dir.join(f).is_file())
     {
         return None;
     }
-    let report: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(dir.join("report.json")).ok()?).ok()?;
-    Some(report.get("seconds").cloned().unwrap_or_default())
+    let file = dir.join("report.json");
+    let written = std::fs::metadata(&file)
+        .and_then(|m| m.modified())
+        .ok()?
+        .duration_since(std::time::UNIX_EPOCH)
+        .ok()?
+        .as_secs_f64();
+    let report: serde_json::Value = serde_json::from_slice(&std::fs::read(&file).ok()?).ok()?;
+    Some((report.get("seconds").cloned().unwrap_or_default(), written))
 }
 
 /// Watches `captures/` and `incoming/`; every event is only a hint to rescan. When
@@ -479,30 +643,59 @@ pub fn scan(shared: &Shared) {
             Err(e) => warn!(capture = %name, "moving {} into captures/: {e}", dir.display()),
         }
     }
-    let j = shared.journal();
+    let mut j = shared.journal();
+    let mut seen = shared.known_ids.lock().unwrap_or_else(|p| p.into_inner());
+    let mut waiting = shared
+        .waiting_handover
+        .lock()
+        .unwrap_or_else(|p| p.into_inner());
     // sets the journal knows are skipped before their manifest is read: after months a
-    // station holds many thousands
-    let known = |name: &str| {
-        j.contains(name).unwrap_or_else(|e| {
-            error!("{e}");
-            true
-        })
-    };
-    for (name, dir) in complete_sets(&captures, known) {
+    // station holds many thousands. While the journal cannot be reached, every set it
+    // was not known to have is a candidate, handed over when it is back.
+    let mut online = true;
+    let candidates = complete_sets(&captures, |name| {
+        if seen.contains(name) {
+            return true;
+        }
+        if !online {
+            return false;
+        }
+        match j.contains(name) {
+            Ok(true) => {
+                seen.insert(name.to_string());
+                true
+            }
+            Ok(false) => false,
+            Err(_) => {
+                online = false;
+                false
+            }
+        }
+    });
+    for (name, dir) in candidates {
         let subject = crate::rig::capture_set::CaptureSetDir::open(&dir)
             .ok()
             .and_then(|s| s.manifest.subject);
-        match j.enqueue(&name, &dir, subject.as_deref()) {
-            Ok(true) => info!(capture = %name, "queued"),
-            Ok(false) => {}
-            Err(e) => error!("{e}"),
+        match shared.journal_result(j.enqueue(&name, &dir, subject.as_deref())) {
+            Some(new) => {
+                if new {
+                    info!(capture = %name, "queued");
+                }
+                if waiting.remove(&name) {
+                    info!(capture = %name, "handed over to the journal");
+                }
+                seen.insert(name);
+            }
+            None => {
+                waiting.insert(name);
+            }
         }
     }
 }
 
 /// Folders under `root` with a plain name, not `skip`ped, and a `manifest.json` whose
 /// listed files are all there (a set still being copied waits for the next scan).
-fn complete_sets(root: &Path, skip: impl Fn(&str) -> bool) -> Vec<(String, PathBuf)> {
+fn complete_sets(root: &Path, mut skip: impl FnMut(&str) -> bool) -> Vec<(String, PathBuf)> {
     let Ok(rd) = std::fs::read_dir(root) else {
         return Vec::new();
     };
@@ -542,7 +735,7 @@ fn complete_sets(root: &Path, skip: impl Fn(&str) -> bool) -> Vec<(String, PathB
 
 /// Starts queued jobs while fewer than `workers` run.
 fn dispatch(shared: &Arc<Shared>) {
-    if shared.stopping.load(Ordering::SeqCst) {
+    if shared.stopping.load(Ordering::SeqCst) || !shared.cfg.daemon.local_workers {
         return;
     }
     loop {
@@ -550,13 +743,11 @@ fn dispatch(shared: &Arc<Shared>) {
         if busy >= shared.workers {
             return;
         }
-        let job = match shared.journal().claim() {
-            Ok(Some(job)) => job,
-            Ok(None) => return,
-            Err(e) => {
-                error!("{e}");
-                return;
-            }
+        let claimed = shared
+            .journal()
+            .claim(&shared.worker_name, shared.cfg.journal.lease_s);
+        let Some(Some(job)) = shared.journal_result(claimed) else {
+            return;
         };
         if let Ok(mut r) = shared.running.lock() {
             r.insert(job.id.clone(), Instant::now());
@@ -568,196 +759,45 @@ fn dispatch(shared: &Arc<Shared>) {
     }
 }
 
-/// How a worker process ended.
-enum Ended {
-    Outcome(ProcessOutcome),
-    Crashed(String),
-    TimedOut,
-    Aborted,
-    NotStarted(String),
-}
-
 async fn run_job(shared: Arc<Shared>, job: journal::Job) {
-    let cfg = &shared.cfg;
-    let threads = std::thread::available_parallelism()
-        .map(|n| (n.get() / shared.workers).max(1))
-        .unwrap_or(1);
-    let mut cmd = tokio::process::Command::new(&shared.exe);
-    cmd.arg("process")
-        .arg(&job.dir)
-        .arg("--config")
-        .arg(&cfg.file)
-        .arg("--out")
-        .arg(shared.results_dir())
-        .arg("--json")
-        .arg("--parent")
-        .arg(std::process::id().to_string())
-        .env("RAYON_NUM_THREADS", threads.to_string())
-        .stdin(std::process::Stdio::null())
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::piped())
-        .kill_on_drop(true);
-    info!(capture = %job.id, attempt = job.attempts, "processing");
-    let limit = Duration::from_secs_f64(cfg.daemon.job_timeout_s);
-    let ended = match cmd.spawn() {
-        Err(e) => Ended::NotStarted(e.to_string()),
-        Ok(child) => {
-            tokio::select! {
-                r = tokio::time::timeout(limit, child.wait_with_output()) => match r {
-                    Err(_) => Ended::TimedOut,
-                    Ok(Err(e)) => Ended::NotStarted(e.to_string()),
-                    Ok(Ok(out)) => ended_of(&out),
-                },
-                _ = shared.abort.notified() => Ended::Aborted,
-            }
-        }
+    let spec = shared.job_spec();
+    let ended = runner::run_child(&spec, &job, &shared.abort).await;
+    let recorded = {
+        let mut j = shared.journal();
+        runner::record(&mut j, &shared.worker_name, &job, ended, &spec)
     };
-    finish(&shared, &job, ended);
     if let Ok(mut r) = shared.running.lock() {
         r.remove(&job.id);
     }
-    shared.wake.notify_one();
-}
-
-fn ended_of(out: &std::process::Output) -> Ended {
-    use std::os::unix::process::ExitStatusExt;
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    let last_err = stderr.lines().last().map(str::to_string);
-    if let Some(sig) = out.status.signal() {
-        return Ended::Crashed(format!(
-            "the worker process was killed by signal {sig} ({}){}",
-            signal_name(sig),
-            last_err
-                .map(|l| format!("; it said: {l}"))
-                .unwrap_or_default()
-        ));
-    }
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    match stdout
-        .lines()
-        .rev()
-        .find_map(|l| serde_json::from_str::<ProcessOutcome>(l).ok())
-    {
-        Some(o) => Ended::Outcome(o),
-        None => Ended::Crashed(format!(
-            "the worker process exited with {} without a result{}",
-            out.status,
-            last_err
-                .map(|l| format!("; it said: {l}"))
-                .unwrap_or_default()
-        )),
-    }
-}
-
-fn signal_name(sig: i32) -> &'static str {
-    match sig {
-        6 => "SIGABRT",
-        9 => "SIGKILL: out of memory, or killed",
-        11 => "SIGSEGV",
-        7 => "SIGBUS",
-        4 => "SIGILL",
-        8 => "SIGFPE",
-        15 => "SIGTERM",
-        _ => "a signal",
-    }
-}
-
-/// Records how a job ended: done, failed for good, or queued again with a backoff.
-fn finish(shared: &Arc<Shared>, job: &journal::Job, ended: Ended) {
-    let j = shared.journal();
-    let max = shared.cfg.daemon.max_attempts;
-    let retry = |stage: &str, msg: &str| {
-        let at = (job.attempts < max).then(|| journal::now() + backoff_s(job.attempts));
-        match at {
-            Some(_) => warn!(capture = %job.id, stage, attempt = job.attempts, "{msg}; will retry"),
-            None => {
-                error!(capture = %job.id, stage, "{msg}; giving up after {} attempts", job.attempts)
-            }
-        }
-        if let Err(e) = j.failed(&job.id, stage, msg, at) {
-            error!("{e}");
-        }
-    };
-    match ended {
-        Ended::Outcome(o) if o.ok => {
-            let dir = o
-                .result
-                .clone()
-                .unwrap_or_else(|| shared.results_dir().join(&job.id));
-            let seconds = o.seconds.clone().unwrap_or_default();
-            if let Err(e) = j.done(&job.id, &dir, &seconds) {
-                error!("{e}");
-            }
-            let total = seconds.get("total").and_then(|v| v.as_f64()).unwrap_or(0.0);
-            info!(
-                capture = %job.id,
-                seconds = total,
-                mean_distance_pct = o.mean_distance_relative.unwrap_or(f64::NAN) * 100.0,
-                "done"
-            );
-            if let Ok(mut m) = shared.metrics.lock()
-                && let Some(obj) = seconds.as_object()
-            {
-                for (stage, v) in obj {
-                    if let Some(s) = v.as_f64() {
-                        m.observe(stage, s);
+    match recorded {
+        Err(e) => error!("{e}"),
+        Ok(r) => {
+            if let Ok(mut m) = shared.metrics.lock() {
+                match &r {
+                    runner::Recorded::Done(seconds) => {
+                        m.jobs_done += 1;
+                        for (stage, v) in seconds.as_object().into_iter().flatten() {
+                            if let Some(s) = v.as_f64() {
+                                m.observe(stage, s);
+                            }
+                        }
                     }
+                    runner::Recorded::Crashed => m.worker_crashes += 1,
+                    runner::Recorded::TimedOut { .. } => m.timeouts += 1,
+                    _ => {}
                 }
             }
-            drop(j);
-            let n = shared.since_rebuild.fetch_add(1, Ordering::SeqCst) + 1;
-            let every = shared.cfg.model.rebuild_every;
-            if every > 0 && n >= every {
-                shared.since_rebuild.store(0, Ordering::SeqCst);
-                request_model_rebuild(shared);
-            }
-        }
-        Ended::Outcome(o) => {
-            let stage = o.stage.as_deref().unwrap_or("unknown");
-            let msg = o.error.as_deref().unwrap_or("failed");
-            if o.permanent {
-                error!(capture = %job.id, stage, "{msg}");
-                if let Err(e) = j.failed(&job.id, stage, msg, None) {
-                    error!("{e}");
+            if matches!(r, runner::Recorded::Done(_)) {
+                let n = shared.since_rebuild.fetch_add(1, Ordering::SeqCst) + 1;
+                let every = shared.cfg.model.rebuild_every;
+                if every > 0 && n >= every {
+                    shared.since_rebuild.store(0, Ordering::SeqCst);
+                    request_model_rebuild(&shared);
                 }
-            } else {
-                retry(stage, msg);
-            }
-        }
-        Ended::Crashed(msg) => {
-            if let Ok(mut m) = shared.metrics.lock() {
-                m.worker_crashes += 1;
-            }
-            error!(capture = %job.id, "{msg}");
-            if let Err(e) = j.failed(&job.id, "worker", &msg, None) {
-                error!("{e}");
-            }
-        }
-        Ended::TimedOut => {
-            if let Ok(mut m) = shared.metrics.lock() {
-                m.timeouts += 1;
-            }
-            retry(
-                "worker",
-                &format!(
-                    "stopped after the time limit of {} s",
-                    shared.cfg.daemon.job_timeout_s
-                ),
-            );
-        }
-        Ended::NotStarted(msg) => retry("worker", &format!("the worker could not run: {msg}")),
-        Ended::Aborted => {
-            info!(capture = %job.id, "stopped by the shutdown; queued for the next start");
-            if let Err(e) = j.requeue(&job.id) {
-                error!("{e}");
             }
         }
     }
-}
-
-/// Seconds before attempt `n + 1`: 5, 20, 80 ... up to an hour.
-fn backoff_s(attempts: u32) -> f64 {
-    (5.0 * 4f64.powi(attempts.saturating_sub(1).min(10) as i32)).min(3600.0)
+    shared.wake.notify_one();
 }
 
 /// Rebuilds the shape model from every done result, in the background; false when a
@@ -793,7 +833,7 @@ fn rebuild_model(shared: &Shared) -> Result<usize, String> {
         .ok_or("the station file has no [model] file")?;
     let done = shared
         .journal()
-        .list(Some(State::Done), usize::MAX)
+        .list(Some(journal::State::Done), usize::MAX)
         .map_err(|e| e.to_string())?;
     let mut samples = Vec::new();
     for job in done {

@@ -22,6 +22,7 @@ pub fn process(
     capture: &Path,
     config: &Path,
     out: &Path,
+    write: Write,
     progress: &mut (dyn FnMut(Progress) + Send),
 ) -> Result<(PathBuf, ProcessReport), JobError> {
     let cfg = StationConfig::load(config)?;
@@ -31,8 +32,21 @@ pub fn process(
         progress: Some(progress),
     };
     let processed = pipeline.process(capture, &mut control)?;
-    let dir = processed.write(out)?;
+    let dir = match write {
+        Write::Publish => processed.write(out)?,
+        Write::Stage => processed.stage(out)?,
+    };
     Ok((dir, processed.report))
+}
+
+/// What [`process`] does with its result.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Write {
+    /// renamed into place as `out/<id>`
+    Publish,
+    /// left complete under a hidden name in `out`, for a worker to publish once the
+    /// journal says the job is still its own (`crate::station::pipeline::publish`)
+    Stage,
 }
 
 /// What `conformd process --json` prints as its one line on stdout: how a worker process
@@ -41,7 +55,10 @@ pub fn process(
 pub struct ProcessOutcome {
     pub ok: bool,
     pub capture: Option<String>,
+    /// the result folder, or with `staged` the hidden folder it waits in
     pub result: Option<PathBuf>,
+    #[serde(default)]
+    pub staged: bool,
     /// seconds per stage
     pub seconds: Option<serde_json::Value>,
     /// the mean distance to the scan, relative to the diagonal, and the filled share
@@ -56,12 +73,13 @@ pub struct ProcessOutcome {
 }
 
 impl ProcessOutcome {
-    pub fn of(r: &Result<(PathBuf, ProcessReport), JobError>) -> ProcessOutcome {
+    pub fn of(r: &Result<(PathBuf, ProcessReport), JobError>, write: Write) -> ProcessOutcome {
         match r {
             Ok((dir, report)) => ProcessOutcome {
                 ok: true,
                 capture: Some(report.capture.clone()),
                 result: Some(dir.clone()),
+                staged: write == Write::Stage,
                 seconds: serde_json::to_value(&report.seconds).ok(),
                 mean_distance_relative: Some(report.conformation.mean_distance_relative),
                 filled: Some(report.conformation.filled),
@@ -80,6 +98,7 @@ impl ProcessOutcome {
                     ok: false,
                     capture,
                     result: None,
+                    staged: false,
                     seconds: None,
                     mean_distance_relative: None,
                     filled: None,

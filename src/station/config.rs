@@ -97,6 +97,9 @@ impl Default for MeasureSection {
 pub struct DaemonSection {
     /// jobs at once (0: as many as the machine's cores allow)
     pub workers: usize,
+    /// run jobs on this machine; false: only `conformd worker`s elsewhere run them (a
+    /// PostgreSQL journal)
+    pub local_workers: bool,
     /// seconds between full rescans of the capture folders
     pub rescan_s: f64,
     /// the HTTP server's address
@@ -117,6 +120,7 @@ impl Default for DaemonSection {
     fn default() -> Self {
         DaemonSection {
             workers: 0,
+            local_workers: true,
             rescan_s: 30.0,
             listen: "127.0.0.1:8470".into(),
             token: None,
@@ -124,6 +128,54 @@ impl Default for DaemonSection {
             max_attempts: 3,
             watch: true,
             drain_s: 30.0,
+        }
+    }
+}
+
+/// `[journal]`: where the job queue lives.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct JournalSection {
+    /// `postgres://user@host/db`: one journal for several stations and workers on other
+    /// machines; none: the SQLite file `<data>/journal.sqlite` (one station)
+    pub url: Option<String>,
+    /// seconds a claimed job stays a worker's without a heartbeat; a worker that dies
+    /// loses it after this and the job is claimed again
+    pub lease_s: f64,
+    /// seconds an idle worker waits for news of work (NOTIFY) before looking anyway
+    pub poll_s: f64,
+}
+
+impl Default for JournalSection {
+    fn default() -> Self {
+        JournalSection {
+            url: None,
+            lease_s: 30.0,
+            poll_s: 10.0,
+        }
+    }
+}
+
+/// `[worker]`: a `conformd worker` on a machine of its own.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct WorkerSection {
+    /// its name in the journal and on the status page (default: host and process id)
+    pub name: Option<String>,
+    /// jobs at once (0: half the machine's cores, at least one)
+    pub jobs: usize,
+    /// the program each job runs as `PROGRAM process <capture> --config <this file> --out
+    /// <results> --json --stage` (default: this conformd); a wrapper (nice, a container)
+    /// may stand in
+    pub program: Option<PathBuf>,
+}
+
+impl Default for WorkerSection {
+    fn default() -> Self {
+        WorkerSection {
+            name: None,
+            jobs: 1,
+            program: None,
         }
     }
 }
@@ -142,6 +194,8 @@ pub struct StationConfig {
     pub model: ModelSection,
     pub measure: MeasureSection,
     pub daemon: DaemonSection,
+    pub journal: JournalSection,
+    pub worker: WorkerSection,
 }
 
 /// One problem in a station file; `line` is 1-based.
@@ -182,9 +236,9 @@ impl std::fmt::Display for ConfigError {
     }
 }
 
-const SECTIONS: [&str; 10] = [
+const SECTIONS: [&str; 12] = [
     "station", "template", "conform", "rig", "capture", "cameras", "trigger", "model", "measure",
-    "daemon",
+    "daemon", "journal", "worker",
 ];
 
 /// True when a TOML table is a station file (it has one of the station's sections)
@@ -314,6 +368,29 @@ impl StationConfig {
         let model: ModelSection = read!("model", ModelSection).unwrap_or_default();
         let measure: MeasureSection = read!("measure", MeasureSection).unwrap_or_default();
         let daemon: DaemonSection = read!("daemon", DaemonSection).unwrap_or_default();
+        let journal: JournalSection = read!("journal", JournalSection).unwrap_or_default();
+        let worker: WorkerSection = read!("worker", WorkerSection).unwrap_or_default();
+        if let Some(u) = &journal.url
+            && !(u.starts_with("postgres://") || u.starts_with("postgresql://"))
+        {
+            add(
+                at("journal"),
+                "[journal]: url must start with postgres:// or postgresql://".into(),
+            );
+        }
+        let within = |v: f64, lo: f64, hi: f64| (lo..=hi).contains(&v);
+        if !within(journal.lease_s, 2.0, 3600.0) || !within(journal.poll_s, 0.1, 3600.0) {
+            add(
+                at("journal"),
+                format!(
+                    "[journal]: lease_s = {} must be 2 to 3600 and poll_s = {} 0.1 to 3600",
+                    journal.lease_s, journal.poll_s
+                ),
+            );
+        }
+        if worker.jobs > 256 {
+            add(at("worker"), "[worker]: jobs must be at most 256".into());
+        }
 
         // what the types cannot check
         if let Err(e) = conform.validate() {
@@ -410,6 +487,8 @@ impl StationConfig {
             model,
             measure,
             daemon,
+            journal,
+            worker,
         };
         cfg.resolve_paths();
         Ok(cfg)
@@ -438,6 +517,7 @@ impl StationConfig {
             c.replay.iter_mut().flatten().for_each(abs);
         }
         self.model.file.iter_mut().for_each(abs);
+        self.worker.program.iter_mut().for_each(abs);
         for p in [
             &mut self.measure.definitions,
             &mut self.measure.posture_model,

@@ -240,6 +240,24 @@ impl Processed {
     /// capture is replaced only then), so there is never half a result under its id.
     /// Returns the folder.
     pub fn write(&self, results: &Path) -> Result<PathBuf, StageError> {
+        let staged = self.stage(results)?;
+        publish(results, &self.id, &staged).map_err(|(path, source)| {
+            let _ = std::fs::remove_dir_all(&staged);
+            StageError::new(
+                Stage::Write,
+                &self.id,
+                StageCause::Io {
+                    path: path.display().to_string(),
+                    source,
+                },
+            )
+        })
+    }
+
+    /// The first half of [`Processed::write`]: the complete result in a hidden folder of
+    /// `results` (`.<id>.partial-*`), every file synced, not yet under its id. A worker
+    /// publishes it only once the journal says the job is still its own.
+    pub fn stage(&self, results: &Path) -> Result<PathBuf, StageError> {
         let fail = |path: &Path, source: std::io::Error| {
             StageError::new(
                 Stage::Write,
@@ -259,7 +277,6 @@ impl Processed {
         std::fs::create_dir_all(results).map_err(|e| fail(results, e))?;
         let tag = format!("{}-{}", std::process::id(), unique());
         let tmp = results.join(format!(".{}.partial-{tag}", self.id));
-        let dir = results.join(&self.id);
         let enc = crate::mesh::io::PlyEncoding::BinaryLittleEndian;
         let json = serde_json::to_vec_pretty(&self.report).expect("a report serialises");
         let files: [(&str, Vec<u8>); 4] = [
@@ -279,23 +296,57 @@ impl Processed {
                 pause_for_crash_tests();
             }
             sync_dir(&tmp);
-            let old = results.join(format!(".{}.old-{tag}", self.id));
-            let replacing = dir.exists();
-            if replacing {
-                std::fs::rename(&dir, &old).map_err(|e| fail(&dir, e))?;
-            }
-            std::fs::rename(&tmp, &dir).map_err(|e| fail(&dir, e))?;
-            sync_dir(results);
-            if replacing {
-                let _ = std::fs::remove_dir_all(&old);
-            }
-            Ok(dir.clone())
+            Ok(tmp.clone())
         })();
         if result.is_err() {
             let _ = std::fs::remove_dir_all(&tmp);
         }
         result
     }
+}
+
+/// The second half of [`Processed::write`]: renames a staged result (a folder of
+/// `results` holding [`RESULT_FILES`]) into place as `results/<id>`, replacing an older
+/// result only then. Returns the folder, or the path and error that stopped it.
+pub fn publish(
+    results: &Path,
+    id: &str,
+    staged: &Path,
+) -> Result<PathBuf, (PathBuf, std::io::Error)> {
+    let invalid = |m: String| {
+        (
+            staged.to_path_buf(),
+            std::io::Error::new(std::io::ErrorKind::InvalidInput, m),
+        )
+    };
+    crate::paths::check_plain_name("capture id", id).map_err(invalid)?;
+    // only a complete folder beside its final place (a rename never crosses disks)
+    if staged.parent() != Some(results) {
+        return Err(invalid(format!(
+            "a staged result must be a folder of {}",
+            results.display()
+        )));
+    }
+    if let Some(f) = RESULT_FILES.iter().find(|f| !staged.join(f).is_file()) {
+        return Err(invalid(format!("the staged result lacks {f}")));
+    }
+    let dir = results.join(id);
+    let old = results.join(format!(".{id}.old-{}-{}", std::process::id(), unique()));
+    let replacing = dir.exists();
+    if replacing {
+        std::fs::rename(&dir, &old).map_err(|e| (dir.clone(), e))?;
+    }
+    if let Err(e) = std::fs::rename(staged, &dir) {
+        if replacing {
+            let _ = std::fs::rename(&old, &dir);
+        }
+        return Err((dir, e));
+    }
+    sync_dir(results);
+    if replacing {
+        let _ = std::fs::remove_dir_all(&old);
+    }
+    Ok(dir)
 }
 
 /// Removes what an interrupted [`Processed::write`] left in `results` (hidden
