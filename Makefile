@@ -3,8 +3,9 @@
 
 # fonts-dejavu-core: the labels of the subject history plots
 APT_PACKAGES := libopencv-dev clang libclang-dev pkg-config libudev-dev fonts-dejavu-core
-# the status page's browser test runs Debian's headless Chromium
-TEST_PACKAGES := chromium
+# the status page's browser test runs Debian's headless Chromium; the journal and worker
+# tests start throwaway PostgreSQL clusters with Debian's server
+TEST_PACKAGES := chromium postgresql
 CARGO ?= cargo
 DEMO_OUT ?= demo-output
 
@@ -47,14 +48,16 @@ test: test-deps lint
 	$(CARGO) test --locked --profile ci
 	@$(MAKE) --no-print-directory verify-unit
 
-# systemd-analyze verify on the unit (where systemd is), pointing at the binary just built.
+# systemd-analyze verify on the units (where systemd is), pointing at the binary just built.
 verify-unit:
 	@if command -v systemd-analyze >/dev/null; then \
-	  d=$$(mktemp -d); \
-	  sed "s#/usr/local/bin/conformd#$(CURDIR)/target/ci/conformd#" systemd/conformd.service > $$d/conformd.service; \
-	  systemd-analyze verify $$d/conformd.service && echo "systemd unit verified"; \
-	  rc=$$?; rm -rf $$d; exit $$rc; \
-	else echo "systemd-analyze not found: unit not verified"; fi
+	  d=$$(mktemp -d); rc=0; \
+	  for u in conformd conformd-worker; do \
+	    sed "s#/usr/local/bin/conformd#$(CURDIR)/target/ci/conformd#" systemd/$$u.service > $$d/$$u.service; \
+	    systemd-analyze verify $$d/$$u.service && echo "systemd unit $$u verified" || rc=1; \
+	  done; \
+	  rm -rf $$d; exit $$rc; \
+	else echo "systemd-analyze not found: units not verified"; fi
 
 demo: deps
 	$(CARGO) run --locked --release -- demo --out $(DEMO_OUT)

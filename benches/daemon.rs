@@ -2,7 +2,9 @@
 //! simulated 2-pod 1280x960 capture with a 10,000-vertex pig (the set renamed into
 //! `incoming/`, the time until the journal says done), and sustained throughput with 12
 //! sets dropped at once. The daemon runs in this process; its workers are the `conformd`
-//! binary. Run: `cargo bench --bench daemon`.
+//! binary. Run: `cargo bench --bench daemon`; `-- --postgres` puts the journal on a
+//! throwaway PostgreSQL cluster, `-- --remote N` also (the daemon runs no job itself) and
+//! has N `conformd worker` processes run the jobs.
 
 use conformd::daemon::Handle;
 use conformd::station::StationConfig;
@@ -58,24 +60,55 @@ fn main() {
         .local_addr()
         .unwrap()
         .port();
+    let args: Vec<String> = std::env::args().collect();
+    let remote: usize = args
+        .iter()
+        .position(|a| a == "--remote")
+        .and_then(|i| args.get(i + 1)?.parse().ok())
+        .unwrap_or(0);
+    let pg = (remote > 0 || args.iter().any(|a| a == "--postgres")).then(|| {
+        conformd::daemon::journal::cluster::TempPostgres::start()
+            .expect("a PostgreSQL server (make test installs it)")
+    });
+    let journal = match &pg {
+        Some(pg) => format!("[journal]\nurl = \"{}\"\n", pg.database("bench").unwrap()),
+        None => String::new(),
+    };
     let station = d.join("station.toml");
     std::fs::write(
         &station,
         format!(
             "[station]\nname = \"bench\"\ndata = \"data\"\n[template]\ngeneric = \"pig\"\nvertices = 10000\n\
              [rig]\nfile = \"{}\"\ncalibration = \"sim/calibration\"\n\
-             [daemon]\nlisten = \"127.0.0.1:{port}\"\nrescan_s = 1.0\n",
-            rig.display()
+             [daemon]\nlisten = \"127.0.0.1:{port}\"\nrescan_s = 1.0\nlocal_workers = {}\n{journal}",
+            rig.display(),
+            remote == 0
         ),
     )
     .unwrap();
+    let workers: Vec<std::process::Child> = (0..remote)
+        .map(|_| {
+            std::process::Command::new(env!("CARGO_BIN_EXE_conformd"))
+                .args(["worker", "--config"])
+                .arg(&station)
+                .stdout(std::process::Stdio::null())
+                .stderr(std::process::Stdio::null())
+                .spawn()
+                .unwrap()
+        })
+        .collect();
     let cfg = StationConfig::load(&station).unwrap();
     let incoming = cfg.station.incoming();
     let exe = PathBuf::from(env!("CARGO_BIN_EXE_conformd"));
     let h = Handle::spawn(cfg, Some(exe)).unwrap();
     println!(
-        "daemon with {} workers on {} cores",
-        h.shared.workers,
+        "daemon ({}) with {} on {} cores",
+        h.shared.journal().describe(),
+        if remote > 0 {
+            format!("{remote} remote worker process(es), none of its own")
+        } else {
+            format!("{} workers", h.shared.workers)
+        },
         std::thread::available_parallelism()
             .map(|n| n.get())
             .unwrap_or(1)
@@ -132,4 +165,11 @@ fn main() {
         n as f64 / secs * 60.0
     );
     h.stop().unwrap();
+    for mut w in workers {
+        let _ = std::process::Command::new("kill")
+            .arg("-TERM")
+            .arg(w.id().to_string())
+            .status();
+        let _ = w.wait();
+    }
 }

@@ -105,12 +105,28 @@ async fn require_token(
 }
 
 #[derive(serde::Serialize)]
+struct JournalStatus {
+    store: String,
+    online: bool,
+    /// since when, and why, it cannot be reached
+    offline_since: Option<f64>,
+    error: Option<String>,
+    /// capture sets in `captures/` to hand over when it is back
+    waiting_handover: Vec<String>,
+}
+
+#[derive(serde::Serialize)]
 struct Status {
     station: String,
     uptime_s: f64,
+    journal: JournalStatus,
     queue: super::journal::Counts,
     running: Vec<String>,
+    /// jobs this daemon runs at once (0: none, other machines' workers run them)
     workers: usize,
+    /// every worker of the journal (this daemon's own and other machines'), from their
+    /// heartbeats
+    worker_list: Vec<super::journal::WorkerInfo>,
     stopping: bool,
     rig: super::RigStatus,
     free_disk_bytes: Option<u64>,
@@ -121,7 +137,27 @@ struct Status {
 }
 
 fn status_of(shared: &Shared) -> Api<Status> {
-    let queue = shared.journal().counts().map_err(internal)?;
+    // an unreachable journal is a state to show, not an error of this page
+    let (queue, worker_list, store) = {
+        let mut j = shared.journal();
+        let q = j.counts();
+        let w = j.workers();
+        (q, w, j.describe())
+    };
+    let queue = shared.journal_result(queue).unwrap_or_default();
+    let worker_list = shared.journal_result(worker_list).unwrap_or_default();
+    let offline = shared.journal_offline.lock().ok().and_then(|o| o.clone());
+    let journal = JournalStatus {
+        store,
+        online: offline.is_none(),
+        offline_since: offline.as_ref().map(|o| o.0),
+        error: offline.map(|o| o.1),
+        waiting_handover: shared
+            .waiting_handover
+            .lock()
+            .map(|w| w.iter().cloned().collect())
+            .unwrap_or_default(),
+    };
     let running = shared
         .running
         .lock()
@@ -131,9 +167,15 @@ fn status_of(shared: &Shared) -> Api<Status> {
     Ok(Status {
         station: shared.cfg.station.name.clone(),
         uptime_s: shared.uptime(),
+        journal,
         queue,
         running,
-        workers: shared.workers,
+        workers: if shared.cfg.daemon.local_workers {
+            shared.workers
+        } else {
+            0
+        },
+        worker_list,
         stopping: shared.stopping.load(std::sync::atomic::Ordering::SeqCst),
         rig: shared.rig.lock().map(|r| r.clone()).unwrap_or_default(),
         free_disk_bytes: fs4::available_space(&shared.cfg.station.data).ok(),
@@ -394,11 +436,14 @@ const STYLE: &str = "body{font-family:sans-serif;margin:1.5em;color:#222}table{b
 
 async fn page(Ctx(shared): Ctx<Arc<Shared>>) -> Api<Html<String>> {
     let st = status_of(&shared)?;
-    let jobs = shared.journal().list(None, 30).map_err(internal)?;
-    let failed = shared
-        .journal()
-        .list(Some(State::Failed), 10)
-        .map_err(internal)?;
+    let (jobs, failed) = {
+        let mut j = shared.journal();
+        let jobs = j.list(None, 30);
+        let failed = j.list(Some(State::Failed), 10);
+        (jobs, failed)
+    };
+    let jobs = shared.journal_result(jobs).unwrap_or_default();
+    let failed = shared.journal_result(failed).unwrap_or_default();
     let mut h = String::new();
     let _ = write!(
         h,
@@ -434,6 +479,35 @@ async fn page(Ctx(shared): Ctx<Arc<Shared>>) -> Api<Html<String>> {
             "<h2>Latest result: <a href=\"/captures/{id}\">{id}</a></h2><img id=\"latest-preview\" src=\"/api/captures/{id}/preview.png\" alt=\"preview of {id}\" width=\"640\">",
             id = esc(&latest.id)
         );
+    }
+    let jr = &st.journal;
+    if jr.online {
+        let _ = write!(h, "<p id=\"journal\">Journal: {}.</p>", esc(&jr.store));
+    } else {
+        let _ = write!(
+            h,
+            "<p id=\"journal\"><b>Journal {} cannot be reached since {}</b> ({}); {} capture(s) wait in captures/ to be handed over when it is back.</p>",
+            esc(&jr.store),
+            when(jr.offline_since),
+            esc(jr.error.as_deref().unwrap_or("")),
+            jr.waiting_handover.len()
+        );
+    }
+    if !st.worker_list.is_empty() {
+        h.push_str("<h2>Workers</h2><table id=\"workers\"><tr><th>worker</th><th>host</th><th>current job</th><th>jobs done</th><th>last heartbeat</th></tr>");
+        let now = super::journal::now();
+        for w in &st.worker_list {
+            let _ = write!(
+                h,
+                "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{:.0} s ago</td></tr>",
+                esc(&w.name),
+                esc(&w.host),
+                esc(w.job.as_deref().unwrap_or("idle")),
+                w.jobs_done,
+                (now - w.heartbeat_at).max(0.0)
+            );
+        }
+        h.push_str("</table>");
     }
     h.push_str("<h2>Captures</h2><table id=\"captures\"><tr><th>capture</th><th>subject</th><th>state</th><th>attempts</th><th>seconds</th><th>preview</th><th>error</th></tr>");
     for j in &jobs {

@@ -190,7 +190,7 @@ impl Shared {
         capture: Option<std::sync::mpsc::Sender<CaptureRequest>>,
         rig: RigStatus,
     ) -> Result<Arc<Shared>, DaemonError> {
-        let exe = match exe {
+        let exe = match exe.or_else(|| cfg.worker.program.clone()) {
             Some(e) => e,
             None => std::env::current_exe().map_err(io_err(Path::new("conformd")))?,
         };

@@ -51,13 +51,9 @@ async fn work(mut cfg: StationConfig) -> Result<(), DaemonError> {
         info!(capture = %id, "interrupted job queued again");
     }
     let slots = super::half_the_cores(cfg.worker.jobs);
-    let mut cfg_exe = None;
-    if let Some(p) = &cfg.worker.program {
-        cfg_exe = Some(p.clone());
-    }
     let shared = Shared::new(
         cfg,
-        cfg_exe,
+        None,
         journal,
         name.clone(),
         slots,

@@ -164,9 +164,9 @@ pub struct WorkerSection {
     pub name: Option<String>,
     /// jobs at once (0: half the machine's cores, at least one)
     pub jobs: usize,
-    /// the program each job runs as `PROGRAM process <capture> --config <this file> --out
-    /// <results> --json --stage` (default: this conformd); a wrapper (nice, a container)
-    /// may stand in
+    /// the program each job runs, the daemon's own and a worker's, as `PROGRAM process
+    /// <capture> --config <this file> --out <results> --json --stage` (default: this
+    /// conformd); a wrapper (nice, a container) may stand in
     pub program: Option<PathBuf>,
 }
 

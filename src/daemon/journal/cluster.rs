@@ -37,11 +37,17 @@ impl TempPostgres {
     /// Makes and starts a cluster; its database `postgres` and user `conformd` exist.
     pub fn start() -> Result<TempPostgres, String> {
         let bin = server_bin()?;
+        let root = running_as_root();
+        // the server's user must reach its folder: /tmp, not a private TMPDIR of root's
+        let parent = if root {
+            PathBuf::from("/tmp")
+        } else {
+            std::env::temp_dir()
+        };
         let dir = tempfile::Builder::new()
             .prefix("conformd-pg-")
-            .tempdir()
+            .tempdir_in(parent)
             .map_err(|e| format!("temporary folder: {e}"))?;
-        let root = running_as_root();
         let user = root.then(|| "postgres".to_string());
         if root {
             let out = Command::new("chown")

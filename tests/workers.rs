@@ -1,0 +1,360 @@
+//! Several machines on one PostgreSQL journal (a throwaway cluster per test): `conformd
+//! worker` processes claiming jobs, one killed mid-job; a station whose database goes
+//! away while it captures; the real pipeline through a worker. Jobs in the first two run
+//! a stand-in program that imitates `conformd process --json --stage` (a staged result
+//! and its JSON line) in a fifth of a second: what is tested is the queue.
+
+use conformd::daemon::journal::{self, State, cluster::TempPostgres};
+use std::os::unix::process::CommandExt;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+const BIN: &str = env!("CARGO_BIN_EXE_conformd");
+
+/// The stand-in job: `PROGRAM process <capture> --config F --out R --json --stage ...`.
+/// It logs each run to `R/../runs.log`.
+fn stand_in(dir: &Path) -> PathBuf {
+    let p = dir.join("fake-process.sh");
+    std::fs::write(
+        &p,
+        r#"#!/bin/bash
+cap="$2"; out="$6"; id=$(basename "$cap")
+echo "$id $$" >> "$out/../runs.log"
+sleep "${FAKE_JOB_S:-0.2}"
+tmp="$out/.$id.partial-$$"
+mkdir -p "$tmp"
+for f in scan.ply conformed.ply preview.png; do echo "$$" > "$tmp/$f"; done
+echo "{\"pid\": $$, \"seconds\": {\"total\": 0.2}}" > "$tmp/report.json"
+echo "{\"ok\":true,\"capture\":\"$id\",\"result\":\"$tmp\",\"staged\":true,\"seconds\":{\"total\":0.2},\"permanent\":false}"
+"#,
+    )
+    .unwrap();
+    Command::new("chmod").arg("+x").arg(&p).status().unwrap();
+    p
+}
+
+/// A station file for `dir/data` on the journal `url`.
+fn config(dir: &Path, url: &str, program: Option<&Path>, extra: &str) -> PathBuf {
+    let p = dir.join("station.toml");
+    let program = program
+        .map(|p| format!("program = \"{}\"\n", p.display()))
+        .unwrap_or_default();
+    std::fs::write(
+        &p,
+        format!(
+            "[station]\nname = \"farm\"\ndata = \"data\"\n\
+             [template]\ngeneric = \"pig\"\nvertices = 1500\n\
+             [journal]\nurl = \"{url}\"\nlease_s = 2.0\npoll_s = 1.0\n\
+             [worker]\njobs = 1\n{program}{extra}"
+        ),
+    )
+    .unwrap();
+    for d in ["data/captures", "data/results", "data/incoming"] {
+        std::fs::create_dir_all(dir.join(d)).unwrap();
+    }
+    p
+}
+
+fn spawn(args: &[&str], log: &Path) -> Child {
+    Command::new(BIN)
+        .args(args)
+        .env("CONFORMD_LOG", "info")
+        .env("FAKE_JOB_S", "0.2")
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(std::fs::File::create(log).unwrap())
+        // its own process group: killing it kills its job too, as a machine that dies
+        .process_group(0)
+        .spawn()
+        .unwrap()
+}
+
+fn signal(group: u32, sig: &str) {
+    Command::new("kill")
+        .args([sig, "--", &format!("-{group}")])
+        .status()
+        .unwrap();
+}
+
+fn wait_until(what: &str, secs: f64, mut f: impl FnMut() -> bool) {
+    let t = Instant::now();
+    while !f() {
+        assert!(
+            t.elapsed().as_secs_f64() < secs,
+            "waited {secs} s for {what}"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+/// Hidden folders left in the results (half-written or staged results).
+fn hidden(results: &Path) -> Vec<String> {
+    std::fs::read_dir(results)
+        .unwrap()
+        .flatten()
+        .map(|e| e.file_name().to_string_lossy().to_string())
+        .filter(|n| n.starts_with('.'))
+        .collect()
+}
+
+fn assert_complete(results: &Path, id: &str) {
+    for f in conformd::station::pipeline::RESULT_FILES {
+        assert!(results.join(id).join(f).is_file(), "{id} lacks {f}");
+    }
+}
+
+#[test]
+fn three_workers_60_jobs_one_killed_mid_job_every_job_done_exactly_once() {
+    let pg = TempPostgres::start().unwrap();
+    let url = pg.database("farm").unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = config(dir.path(), &url, Some(&stand_in(dir.path())), "");
+    let data = dir.path().join("data");
+    let results = data.join("results");
+    let mut j = journal::open(Some(&url), &data).unwrap();
+    let ids: Vec<String> = (0..60).map(|i| format!("pig-{i:02}")).collect();
+    for id in &ids {
+        let set = data.join("captures").join(id);
+        std::fs::create_dir_all(&set).unwrap();
+        assert!(j.enqueue(id, &set, None).unwrap());
+    }
+    let logs: Vec<PathBuf> = (0..3)
+        .map(|k| dir.path().join(format!("worker-{k}.log")))
+        .collect();
+    let cfg_s = cfg.display().to_string();
+    let mut workers: Vec<Child> = logs
+        .iter()
+        .map(|l| spawn(&["worker", "--config", &cfg_s], l))
+        .collect();
+    let victim = workers[1].id();
+    // kill it while it holds a job, a few jobs in
+    let mut held = String::new();
+    wait_until("the victim mid-job", 60.0, || {
+        let done = j.counts().unwrap().done;
+        let mine = j
+            .list(Some(State::Running), 100)
+            .unwrap()
+            .into_iter()
+            .find(|r| {
+                r.worker
+                    .as_deref()
+                    .is_some_and(|w| w.ends_with(&format!(":{victim}")))
+            });
+        if let (true, Some(job)) = (done >= 10, mine) {
+            held = job.id;
+            true
+        } else {
+            false
+        }
+    });
+    signal(victim, "-KILL");
+    let _ = workers[1].wait();
+    wait_until("all 60 jobs done", 120.0, || j.counts().unwrap().done == 60);
+    let c = j.counts().unwrap();
+    assert_eq!((c.queued, c.running, c.failed), (0, 0, 0));
+    // the job the victim held was taken again after its lease ran out
+    let again = j.get(&held).unwrap().unwrap();
+    assert_eq!(
+        (again.state, again.attempts),
+        (State::Done, 2),
+        "{held}: {again:?}"
+    );
+    // every result whole, none half-written or staged left behind
+    for id in &ids {
+        assert_complete(&results, id);
+    }
+    assert!(hidden(&results).is_empty(), "{:?}", hidden(&results));
+    // exactly once: each job was recorded done (its result published) by one worker
+    let mut published: Vec<String> = logs
+        .iter()
+        .flat_map(|l| {
+            std::fs::read_to_string(l)
+                .unwrap()
+                .lines()
+                .filter(|line| line.contains(" done"))
+                .filter_map(|line| {
+                    line.split_whitespace()
+                        .find_map(|w| w.strip_prefix("capture="))
+                        .map(str::to_string)
+                })
+                .collect::<Vec<_>>()
+        })
+        .collect();
+    published.sort();
+    assert_eq!(published, ids, "a job published twice, or not at all");
+    // the victim ran at most the one job again; every job ran at least once
+    let runs = std::fs::read_to_string(data.join("runs.log")).unwrap();
+    assert!(
+        runs.lines().count() >= 60 && runs.lines().count() <= 62,
+        "{runs}"
+    );
+    // the two that live say so; they leave the list when they stop
+    let names: Vec<String> = j.workers().unwrap().into_iter().map(|w| w.name).collect();
+    assert!(names.len() >= 2, "{names:?}");
+    for k in [0, 2] {
+        signal(workers[k].id(), "-TERM");
+        assert!(workers[k].wait().unwrap().success(), "worker {k} exit");
+    }
+    let left: Vec<String> = j.workers().unwrap().into_iter().map(|w| w.name).collect();
+    assert!(
+        left.iter().all(|n| n.ends_with(&format!(":{victim}"))),
+        "{left:?}"
+    );
+}
+
+/// A capture set the daemon takes in: a manifest and the one image it lists.
+fn drop_fake_set(incoming: &Path, id: &str) {
+    let tmp = incoming.join(format!(".{id}.copying"));
+    std::fs::create_dir_all(&tmp).unwrap();
+    std::fs::write(tmp.join("cam0.png"), b"not read by the stand-in").unwrap();
+    std::fs::write(
+        tmp.join("manifest.json"),
+        format!("{{\"format\": \"conformd-capture\", \"version\": 1, \"id\": \"{id}\", \"cameras\": [{{\"id\": \"cam0\", \"file\": \"cam0.png\"}}]}}"),
+    )
+    .unwrap();
+    std::fs::rename(&tmp, incoming.join(id)).unwrap();
+}
+
+fn status(port: u16) -> Option<serde_json::Value> {
+    let body = ureq::get(&format!("http://127.0.0.1:{port}/api/status"))
+        .call()
+        .ok()?
+        .into_body()
+        .read_to_string()
+        .ok()?;
+    serde_json::from_str(&body).ok()
+}
+
+#[test]
+fn a_station_that_loses_its_database_keeps_its_captures_and_hands_them_over_once() {
+    let pg = TempPostgres::start().unwrap();
+    let url = pg.database("station").unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let rig = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/rig.example.toml");
+    let extra = format!(
+        "[rig]\nfile = \"{}\"\n[daemon]\nlisten = \"127.0.0.1:{port}\"\nworkers = 2\nrescan_s = 0.5\n",
+        rig.display()
+    );
+    let cfg = config(dir.path(), &url, Some(&stand_in(dir.path())), &extra);
+    let data = dir.path().join("data");
+    let log = dir.path().join("daemon.log");
+    let mut daemon = spawn(&["daemon", "--config", &cfg.display().to_string()], &log);
+    wait_until("the daemon", 30.0, || status(port).is_some());
+    pg.stop().unwrap();
+    let ids: Vec<String> = (0..10).map(|i| format!("offline-{i}")).collect();
+    for id in &ids {
+        drop_fake_set(&data.join("incoming"), id);
+    }
+    // taken in and kept while the journal is away, and the status says so
+    wait_until("10 captures waiting for the journal", 30.0, || {
+        status(port).is_some_and(|s| {
+            s["journal"]["online"] == false
+                && s["journal"]["waiting_handover"].as_array().map(Vec::len) == Some(10)
+        })
+    });
+    for id in &ids {
+        assert!(
+            data.join("captures")
+                .join(id)
+                .join("manifest.json")
+                .is_file()
+        );
+    }
+    pg.start_server().unwrap();
+    let mut j = journal::open(Some(&url), &data).unwrap();
+    wait_until("the 10 captures processed", 60.0, || {
+        j.counts().unwrap().done == 10
+    });
+    for id in &ids {
+        let job = j.get(id).unwrap().unwrap();
+        assert_eq!((job.state, job.attempts), (State::Done, 1), "{id}");
+        assert_complete(&data.join("results"), id);
+    }
+    let runs = std::fs::read_to_string(data.join("runs.log")).unwrap();
+    assert_eq!(runs.lines().count(), 10, "processed more than once: {runs}");
+    let s = status(port).unwrap();
+    assert_eq!(s["journal"]["online"], true);
+    assert_eq!(
+        s["journal"]["waiting_handover"].as_array().unwrap().len(),
+        0
+    );
+    assert!(
+        s["worker_list"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|w| w["name"].as_str().unwrap().contains(":daemon:farm")),
+        "{s}"
+    );
+    signal(daemon.id(), "-TERM");
+    assert!(daemon.wait().unwrap().success());
+}
+
+#[test]
+fn a_worker_runs_the_real_pipeline_and_publishes_whole_results() {
+    let pg = TempPostgres::start().unwrap();
+    let url = pg.database("real").unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    // the example rig at half its resolution (as the daemon tests), two captures
+    let rig = dir.path().join("rig.toml");
+    std::fs::write(
+        &rig,
+        std::fs::read_to_string(
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("config/rig.example.toml"),
+        )
+        .unwrap()
+        .replace("image = [1280, 960]", "image = [640, 480]")
+        .replace("focal_px = 1100.0", "focal_px = 550.0")
+        .replace("speckle_px = 3.0", "speckle_px = 2.0"),
+    )
+    .unwrap();
+    let sim = dir.path().join("sim");
+    let sets = conformd::jobs::simulate(&rig, "pig", "swing=8,nod=-6", 2, 2.0, &sim).unwrap();
+    let extra = format!(
+        "[rig]\nfile = \"{}\"\ncalibration = \"{}\"\n[conform]\nmax_iterations = 10\n",
+        rig.display(),
+        sim.join("calibration").display()
+    );
+    let cfg = config(dir.path(), &url, None, &extra);
+    let data = dir.path().join("data");
+    let mut j = journal::open(Some(&url), &data).unwrap();
+    let mut ids = Vec::new();
+    for s in &sets {
+        let id = s.file_name().unwrap().to_string_lossy().to_string();
+        let to = data.join("captures").join(&id);
+        std::fs::rename(s, &to).unwrap();
+        assert!(j.enqueue(&id, &to, None).unwrap());
+        ids.push(id);
+    }
+    let log = dir.path().join("worker.log");
+    let mut w = spawn(&["worker", "--config", &cfg.display().to_string()], &log);
+    wait_until("2 real jobs done", 240.0, || {
+        j.counts().unwrap().done == 2 || j.counts().unwrap().failed > 0
+    });
+    let log_text = std::fs::read_to_string(&log).unwrap();
+    assert_eq!(j.counts().unwrap().done, 2, "{log_text}");
+    for id in &ids {
+        assert_complete(&data.join("results"), id);
+        let report: serde_json::Value = serde_json::from_slice(
+            &std::fs::read(data.join("results").join(id).join("report.json")).unwrap(),
+        )
+        .unwrap();
+        assert_eq!(report["capture"], id.as_str());
+        let d = report["conformation"]["mean_distance_relative"]
+            .as_f64()
+            .unwrap();
+        assert!(d > 0.0 && d < 0.01, "{id}: distance to the scan {d}");
+        // stored relative to the shared root, handed out resolved on this machine
+        let job = j.get(id).unwrap().unwrap();
+        assert_eq!(job.result.unwrap(), data.join("results").join(id));
+    }
+    assert!(hidden(&data.join("results")).is_empty());
+    signal(w.id(), "-TERM");
+    assert!(w.wait().unwrap().success());
+}
