@@ -294,6 +294,38 @@ fn a_station_that_loses_its_database_keeps_its_captures_and_hands_them_over_once
     );
     signal(daemon.id(), "-TERM");
     assert!(daemon.wait().unwrap().success());
+
+    // a station that starts while its database is away captures all the same
+    pg.stop().unwrap();
+    let mut daemon = spawn(&["daemon", "--config", &cfg.display().to_string()], &log);
+    wait_until("the daemon without its database", 30.0, || {
+        status(port).is_some()
+    });
+    for i in 0..3 {
+        drop_fake_set(&data.join("incoming"), &format!("late-{i}"));
+    }
+    wait_until("3 captures waiting", 30.0, || {
+        status(port).is_some_and(|s| {
+            s["journal"]["online"] == false
+                && s["journal"]["waiting_handover"]
+                    .as_array()
+                    .is_some_and(|w| {
+                        w.iter()
+                            .filter(|x| x.as_str().unwrap().starts_with("late-"))
+                            .count()
+                            == 3
+                    })
+        })
+    });
+    pg.start_server().unwrap();
+    let mut j = journal::open(Some(&url), &data).unwrap();
+    wait_until("13 captures processed", 60.0, || {
+        j.counts().unwrap().done == 13
+    });
+    let runs = std::fs::read_to_string(data.join("runs.log")).unwrap();
+    assert_eq!(runs.lines().count(), 13, "processed more than once: {runs}");
+    signal(daemon.id(), "-TERM");
+    assert!(daemon.wait().unwrap().success());
 }
 
 #[test]

@@ -322,7 +322,8 @@ async fn serve(
     ] {
         std::fs::create_dir_all(&d).map_err(io_err(&d))?;
     }
-    let journal = journal::open(cfg.journal.url.as_deref(), &cfg.station.data)?;
+    // a station keeps capturing while its database is away, from the start too
+    let journal = journal::open_tolerant(cfg.journal.url.as_deref(), &cfg.station.data)?;
     let worker_name = format!("{}:daemon:{}", journal::hostname(), cfg.station.name);
     let workers = half_the_cores(cfg.daemon.workers);
     let (channel, rig_status) = rig::start(&cfg)?;
@@ -334,7 +335,7 @@ async fn serve(
     if let Some(rx) = capture_rx {
         rig::spawn_capture_thread(shared.clone(), rx);
     }
-    reconcile(&shared)?;
+    reconcile(&shared);
     scan(&shared);
     tokio::spawn(heartbeats(shared.clone()));
     if let Some(url) = shared.cfg.journal.url.clone() {
@@ -460,7 +461,7 @@ async fn heartbeats(shared: Arc<Shared>) {
         let done = shared.metrics.lock().map(|m| m.jobs_done).unwrap_or(0);
         let mut j = shared.journal();
         if !running.is_empty()
-            && let Some(held) = shared.journal_result(j.renew(&shared.worker_name, lease))
+            && let Some(held) = shared.journal_result(j.renew(&shared.worker_name, &running, lease))
         {
             for id in running.iter().filter(|id| !held.contains(id)) {
                 warn!(capture = %id, "this daemon lost its lease on the job; another worker may take it");
@@ -541,30 +542,38 @@ async fn drain(shared: &Arc<Shared>) {
 /// when it stopped are queued again (their attempt counted), as are jobs of workers
 /// whose lease ran out; a queued job whose complete result is newer than its request is
 /// done, never redone.
-fn reconcile(shared: &Shared) -> Result<(), DaemonError> {
+fn reconcile(shared: &Shared) {
     let results = shared.results_dir();
-    match crate::station::pipeline::remove_partial_results(&results) {
-        Ok(n) if n > 0 => info!(removed = n, "removed half-written results"),
-        Ok(_) => {}
-        Err(e) => warn!("cleaning {}: {e}", results.display()),
-    }
-    let mut j = shared.journal();
-    for id in j.release(&shared.worker_name)? {
-        info!(capture = %id, "interrupted job queued again");
-    }
-    for id in j.expire_leases()? {
-        info!(capture = %id, "its worker's lease ran out: queued again");
-    }
-    for job in j.list(Some(journal::State::Queued), usize::MAX)? {
-        let dir = results.join(&job.id);
-        if let Some((seconds, written)) = complete_result(&dir)
-            && written >= job.queued_at
-            && j.adopt(&job.id, &dir, &seconds)?
-        {
-            info!(capture = %job.id, "its complete result exists: done");
+    // on storage several machines share, another's result may be half-written right
+    // now: there a stale one is cleared when its capture is claimed again
+    if shared.cfg.journal.url.is_none() {
+        match crate::station::pipeline::remove_partial_results(&results) {
+            Ok(n) if n > 0 => info!(removed = n, "removed half-written results"),
+            Ok(_) => {}
+            Err(e) => warn!("cleaning {}: {e}", results.display()),
         }
     }
-    Ok(())
+    let r = (|| -> Result<(), JournalError> {
+        let mut j = shared.journal();
+        for id in j.release(&shared.worker_name)? {
+            info!(capture = %id, "interrupted job queued again");
+        }
+        for id in j.expire_leases()? {
+            info!(capture = %id, "its worker's lease ran out: queued again");
+        }
+        for job in j.list(Some(journal::State::Queued), usize::MAX)? {
+            let dir = results.join(&job.id);
+            if let Some((seconds, written)) = complete_result(&dir)
+                && written >= job.queued_at
+                && j.adopt(&job.id, &dir, &seconds)?
+            {
+                info!(capture = %job.id, "its complete result exists: done");
+            }
+        }
+        Ok(())
+    })();
+    // a journal that cannot be reached now is reconciled by the leases later
+    shared.journal_result(r);
 }
 
 /// The stage timings of a complete result folder and when it was written (Unix
@@ -666,13 +675,19 @@ pub fn scan(shared: &Shared) {
                 true
             }
             Ok(false) => false,
-            Err(_) => {
+            Err(e) => {
+                shared.journal_result::<()>(Err(e));
                 online = false;
                 false
             }
         }
     });
     for (name, dir) in candidates {
+        // one failed call is enough to know: the others wait for the next rescan
+        if !online {
+            waiting.insert(name);
+            continue;
+        }
         let subject = crate::rig::capture_set::CaptureSetDir::open(&dir)
             .ok()
             .and_then(|s| s.manifest.subject);
@@ -687,6 +702,7 @@ pub fn scan(shared: &Shared) {
                 seen.insert(name);
             }
             None => {
+                online = false;
                 waiting.insert(name);
             }
         }
@@ -770,7 +786,20 @@ async fn run_job(shared: Arc<Shared>, job: journal::Job) {
         r.remove(&job.id);
     }
     match recorded {
-        Err(e) => error!("{e}"),
+        Err(e) => {
+            // the outcome could not be recorded (the result not published, the journal
+            // away): give the job back for a later attempt rather than hold it
+            error!(capture = %job.id, "{e}");
+            let retry = journal::Finish::Failed {
+                stage: "write".into(),
+                error: e.to_string(),
+                retry_at: Some(journal::now() + runner::backoff_s(job.attempts)),
+            };
+            let again = shared
+                .journal()
+                .finish(&job.id, &shared.worker_name, &retry, &mut || Ok(()));
+            shared.journal_result(again);
+        }
         Ok(r) => {
             if let Ok(mut m) = shared.metrics.lock() {
                 match &r {

@@ -144,9 +144,14 @@ pub trait Backend: Send {
     /// one more attempt and a lease of `lease_s`; concurrent claims never take one job
     /// twice.
     fn claim(&mut self, worker: &str, lease_s: f64) -> Result<Option<Job>, JournalError>;
-    /// Extends the lease of every job `worker` runs; returns their ids (a job missing
-    /// from it was lost: its lease ran out and it was queued again).
-    fn renew(&mut self, worker: &str, lease_s: f64) -> Result<Vec<String>, JournalError>;
+    /// Extends the leases of the jobs `ids` that `worker` still holds; returns those (a
+    /// job missing from it was lost: its lease ran out and it was queued again).
+    fn renew(
+        &mut self,
+        worker: &str,
+        ids: &[String],
+        lease_s: f64,
+    ) -> Result<Vec<String>, JournalError>;
     /// Running jobs whose lease ran out (their worker died or lost the database) are
     /// queued again, their attempt counted; returns their ids.
     fn expire_leases(&mut self) -> Result<Vec<String>, JournalError>;
@@ -206,6 +211,18 @@ pub fn open(url: Option<&str>, data: &Path) -> Result<Journal, JournalError> {
             source: "a journal URL must start with postgres:// or postgresql://".into(),
         }),
         None => open_sqlite(&data.join("journal.sqlite"), data),
+    }
+}
+
+/// As [`open`], but a PostgreSQL journal that cannot be reached yet is returned all the
+/// same (its calls fail until it can, then it connects): a station starts capturing
+/// while its database is away. A URL that cannot be a database is still an error.
+pub fn open_tolerant(url: Option<&str>, data: &Path) -> Result<Journal, JournalError> {
+    match url {
+        Some(u) if u.starts_with("postgres://") || u.starts_with("postgresql://") => {
+            Ok(Box::new(postgres::PgJournal::connect_later(u, data)?))
+        }
+        _ => open(url, data),
     }
 }
 

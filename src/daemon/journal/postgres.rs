@@ -79,6 +79,22 @@ fn ids(rows: Vec<Row>) -> Result<Vec<String>, postgres::Error> {
 impl PgJournal {
     /// Connects, brings the schema up to date and listens for new work.
     pub fn connect(url: &str, root: &Path) -> Result<PgJournal, JournalError> {
+        let mut j = PgJournal::unconnected(url, root)?;
+        j.with(|_, _| Ok(()))?;
+        Ok(j)
+    }
+
+    /// As `connect`, but a first connection that fails is only logged; every call tries
+    /// again.
+    pub fn connect_later(url: &str, root: &Path) -> Result<PgJournal, JournalError> {
+        let mut j = PgJournal::unconnected(url, root)?;
+        if let Err(e) = j.with(|_, _| Ok(())) {
+            tracing::error!("{e}; trying again at every call");
+        }
+        Ok(j)
+    }
+
+    fn unconnected(url: &str, root: &Path) -> Result<PgJournal, JournalError> {
         let mut config: postgres::Config = url.parse().map_err(|e| JournalError {
             store: "postgres (its URL)".into(),
             source: Box::new(e),
@@ -100,14 +116,12 @@ impl PgJournal {
             hosts.join(","),
             config.get_dbname().unwrap_or("")
         );
-        let mut j = PgJournal {
+        Ok(PgJournal {
             config,
             client: None,
             store,
             root: root.to_path_buf(),
-        };
-        j.with(|_, _| Ok(()))?;
-        Ok(j)
+        })
     }
 
     fn err(&self, e: impl Into<Box<dyn std::error::Error + Send + Sync>>) -> JournalError {
@@ -205,11 +219,16 @@ impl Backend for PgJournal {
         })
     }
 
-    fn renew(&mut self, worker: &str, lease_s: f64) -> Result<Vec<String>, JournalError> {
+    fn renew(
+        &mut self,
+        worker: &str,
+        held: &[String],
+        lease_s: f64,
+    ) -> Result<Vec<String>, JournalError> {
         self.with(|c, _| {
             ids(c.query(
-                &format!("UPDATE captures SET lease_until = {DB_NOW} + $2 WHERE state = 'running' AND worker = $1 RETURNING id"),
-                &[&worker, &lease_s],
+                &format!("UPDATE captures SET lease_until = {DB_NOW} + $3 WHERE id = ANY($2) AND state = 'running' AND worker = $1 RETURNING id"),
+                &[&worker, &held, &lease_s],
             )?)
         })
     }

@@ -169,11 +169,21 @@ impl Backend for SqliteJournal {
         Ok(job)
     }
 
-    fn renew(&mut self, worker: &str, lease_s: f64) -> Result<Vec<String>, JournalError> {
-        self.ids(
-            "UPDATE captures SET lease_until = ?2 WHERE state = 'running' AND worker = ?1 RETURNING id",
-            params![worker, now() + lease_s],
-        )
+    fn renew(
+        &mut self,
+        worker: &str,
+        ids: &[String],
+        lease_s: f64,
+    ) -> Result<Vec<String>, JournalError> {
+        let until = now() + lease_s;
+        let mut held = Vec::new();
+        for id in ids {
+            held.extend(self.ids(
+                "UPDATE captures SET lease_until = ?3 WHERE id = ?1 AND state = 'running' AND worker = ?2 RETURNING id",
+                params![id, worker, until],
+            )?);
+        }
+        Ok(held)
     }
 
     fn expire_leases(&mut self) -> Result<Vec<String>, JournalError> {

@@ -147,7 +147,11 @@ fn only_the_worker_holding_a_job_records_it_and_a_lost_lease_goes_back_to_the_qu
         let job = a.claim("A", 2.0).unwrap().unwrap();
         assert_eq!(job.attempts, 1);
         // A renews while it lives
-        assert_eq!(a.renew("A", 2.0).unwrap(), vec![id.clone()]);
+        assert_eq!(a.renew("A", &[id.clone()], 2.0).unwrap(), vec![id.clone()]);
+        assert!(
+            b.renew("B", &[id.clone()], 2.0).unwrap().is_empty(),
+            "renewed another's"
+        );
         assert!(
             b.expire_leases().unwrap().is_empty(),
             "a live lease expired"
@@ -159,7 +163,7 @@ fn only_the_worker_holding_a_job_records_it_and_a_lost_lease_goes_back_to_the_qu
         assert_eq!((job.attempts, job.worker.as_deref()), (2, Some("B")));
         // A comes back late: its renewal no longer holds the job, its result is not
         // published, nothing is recorded
-        assert!(a.renew("A", 2.0).unwrap().is_empty());
+        assert!(a.renew("A", &[id.clone()], 2.0).unwrap().is_empty());
         let mut published = false;
         let r = a
             .finish(
@@ -224,6 +228,8 @@ fn concurrent_claims_never_take_one_job_twice() {
                         let name = format!("w{w}");
                         let mut mine = Vec::new();
                         while let Some(job) = j.claim(&name, 30.0).unwrap() {
+                            // a job takes a moment: the others get their turn
+                            std::thread::sleep(std::time::Duration::from_millis(2));
                             j.finish(&job.id, &name, &done(Path::new("r")), &mut || Ok(()))
                                 .unwrap();
                             mine.push(job.id);
