@@ -147,9 +147,14 @@ fn only_the_worker_holding_a_job_records_it_and_a_lost_lease_goes_back_to_the_qu
         let job = a.claim("A", 2.0).unwrap().unwrap();
         assert_eq!(job.attempts, 1);
         // A renews while it lives
-        assert_eq!(a.renew("A", &[id.clone()], 2.0).unwrap(), vec![id.clone()]);
+        assert_eq!(
+            a.renew("A", std::slice::from_ref(&id), 2.0).unwrap(),
+            vec![id.clone()]
+        );
         assert!(
-            b.renew("B", &[id.clone()], 2.0).unwrap().is_empty(),
+            b.renew("B", std::slice::from_ref(&id), 2.0)
+                .unwrap()
+                .is_empty(),
             "renewed another's"
         );
         assert!(
@@ -163,7 +168,11 @@ fn only_the_worker_holding_a_job_records_it_and_a_lost_lease_goes_back_to_the_qu
         assert_eq!((job.attempts, job.worker.as_deref()), (2, Some("B")));
         // A comes back late: its renewal no longer holds the job, its result is not
         // published, nothing is recorded
-        assert!(a.renew("A", &[id.clone()], 2.0).unwrap().is_empty());
+        assert!(
+            a.renew("A", std::slice::from_ref(&id), 2.0)
+                .unwrap()
+                .is_empty()
+        );
         let mut published = false;
         let r = a
             .finish(
