@@ -243,31 +243,26 @@ impl Processed {
         let staged = self.stage(results)?;
         publish(results, &self.id, &staged).map_err(|(path, source)| {
             let _ = std::fs::remove_dir_all(&staged);
-            StageError::new(
-                Stage::Write,
-                &self.id,
-                StageCause::Io {
-                    path: path.display().to_string(),
-                    source,
-                },
-            )
+            self.write_error(&path, source)
         })
+    }
+
+    fn write_error(&self, path: &Path, source: std::io::Error) -> StageError {
+        StageError::new(
+            Stage::Write,
+            &self.id,
+            StageCause::Io {
+                path: path.display().to_string(),
+                source,
+            },
+        )
     }
 
     /// The first half of [`Processed::write`]: the complete result in a hidden folder of
     /// `results` (`.<id>.partial-*`), every file synced, not yet under its id. A worker
     /// publishes it only once the journal says the job is still its own.
     pub fn stage(&self, results: &Path) -> Result<PathBuf, StageError> {
-        let fail = |path: &Path, source: std::io::Error| {
-            StageError::new(
-                Stage::Write,
-                &self.id,
-                StageCause::Io {
-                    path: path.display().to_string(),
-                    source,
-                },
-            )
-        };
+        let fail = |path: &Path, source: std::io::Error| self.write_error(path, source);
         crate::paths::check_plain_name("capture id", &self.id).map_err(|m| {
             fail(
                 results,

@@ -260,6 +260,63 @@ pub fn hostname() -> String {
 #[cfg(test)]
 mod tests;
 
+/// A `captures` row as a [`Job`], for either client: `$get` is its getter (`get` or
+/// `try_get`), `$int` its integer type, `root` the data root folders are resolved against.
+macro_rules! job_of_row {
+    ($r:expr, $get:ident, $int:ty, $root:expr) => {{
+        let r = $r;
+        let state: String = r.$get("state")?;
+        let seconds: Option<String> = r.$get("seconds")?;
+        Ok(Job {
+            id: r.$get("id")?,
+            dir: resolved_path(&r.$get::<_, String>("dir")?, $root),
+            state: State::parse(&state).unwrap_or(State::Failed),
+            attempts: r.$get::<_, $int>("attempts")?.max(0) as u32,
+            subject: r.$get("subject")?,
+            stage: r.$get("stage")?,
+            error: r.$get("error")?,
+            seconds: seconds.and_then(|s| serde_json::from_str(&s).ok()),
+            result: r
+                .$get::<_, Option<String>>("result")?
+                .map(|s| resolved_path(&s, $root)),
+            queued_at: r.$get("queued_at")?,
+            started_at: r.$get("started_at")?,
+            finished_at: r.$get("finished_at")?,
+            not_before: r.$get("not_before")?,
+            worker: r.$get("worker")?,
+            lease_until: r.$get("lease_until")?,
+        })
+    }};
+}
+use job_of_row;
+
+/// A `workers` row as a [`WorkerInfo`], for either client (as [`job_of_row`]).
+macro_rules! worker_of_row {
+    ($r:expr, $get:ident, $int:ty) => {{
+        let r = $r;
+        Ok(WorkerInfo {
+            name: r.$get("name")?,
+            host: r.$get("host")?,
+            pid: r.$get::<_, $int>("pid")?.max(0) as u32,
+            started_at: r.$get("started_at")?,
+            heartbeat_at: r.$get("heartbeat_at")?,
+            job: r.$get("job")?,
+            jobs_done: r.$get::<_, $int>("jobs_done")?.max(0) as u64,
+        })
+    }};
+}
+use worker_of_row;
+
+impl Finish {
+    /// A failure's next state and when it may run again.
+    fn failed_state(retry_at: Option<f64>) -> (&'static str, f64) {
+        match retry_at {
+            Some(at) => ("queued", at),
+            None => ("failed", 0.0),
+        }
+    }
+}
+
 impl Counts {
     /// From (state, count) rows.
     fn of(rows: impl IntoIterator<Item = (String, i64)>) -> Counts {

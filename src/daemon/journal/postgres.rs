@@ -37,39 +37,11 @@ fn blocking<R>(f: impl FnOnce() -> R) -> R {
 }
 
 fn row_to_job(r: &Row, root: &Path) -> Result<Job, postgres::Error> {
-    let state: String = r.try_get("state")?;
-    let seconds: Option<String> = r.try_get("seconds")?;
-    Ok(Job {
-        id: r.try_get("id")?,
-        dir: resolved_path(&r.try_get::<_, String>("dir")?, root),
-        state: State::parse(&state).unwrap_or(State::Failed),
-        attempts: r.try_get::<_, i32>("attempts")?.max(0) as u32,
-        subject: r.try_get("subject")?,
-        stage: r.try_get("stage")?,
-        error: r.try_get("error")?,
-        seconds: seconds.and_then(|s| serde_json::from_str(&s).ok()),
-        result: r
-            .try_get::<_, Option<String>>("result")?
-            .map(|s| resolved_path(&s, root)),
-        queued_at: r.try_get("queued_at")?,
-        started_at: r.try_get("started_at")?,
-        finished_at: r.try_get("finished_at")?,
-        not_before: r.try_get("not_before")?,
-        worker: r.try_get("worker")?,
-        lease_until: r.try_get("lease_until")?,
-    })
+    super::job_of_row!(r, try_get, i32, root)
 }
 
 fn row_to_worker(r: &Row) -> Result<WorkerInfo, postgres::Error> {
-    Ok(WorkerInfo {
-        name: r.try_get("name")?,
-        host: r.try_get("host")?,
-        pid: r.try_get::<_, i32>("pid")?.max(0) as u32,
-        started_at: r.try_get("started_at")?,
-        heartbeat_at: r.try_get("heartbeat_at")?,
-        job: r.try_get("job")?,
-        jobs_done: r.try_get::<_, i32>("jobs_done")?.max(0) as u64,
-    })
+    super::worker_of_row!(r, try_get, i32)
 }
 
 fn ids(rows: Vec<Row>) -> Result<Vec<String>, postgres::Error> {
@@ -282,10 +254,7 @@ impl Backend for PgJournal {
                     &[&id, &worker, &result, &seconds.to_string(), &t],
                 )?,
                 Finish::Failed { stage, error, retry_at } => {
-                    let (state, not_before) = match retry_at {
-                        Some(at) => ("queued", *at),
-                        None => ("failed", 0.0),
-                    };
+                    let (state, not_before) = Finish::failed_state(*retry_at);
                     tx.execute(
                         &format!("UPDATE captures SET state = $3, stage = $4, error = $5, not_before = $6, finished_at = $7, worker = NULL {owner}"),
                         &[&id, &worker, &state, &stage, &error, &not_before, &t],

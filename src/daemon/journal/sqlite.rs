@@ -16,39 +16,11 @@ pub struct SqliteJournal {
 }
 
 fn row_to_job(r: &rusqlite::Row, root: &Path) -> rusqlite::Result<Job> {
-    let state: String = r.get("state")?;
-    let seconds: Option<String> = r.get("seconds")?;
-    Ok(Job {
-        id: r.get("id")?,
-        dir: resolved_path(&r.get::<_, String>("dir")?, root),
-        state: State::parse(&state).unwrap_or(State::Failed),
-        attempts: r.get("attempts")?,
-        subject: r.get("subject")?,
-        stage: r.get("stage")?,
-        error: r.get("error")?,
-        seconds: seconds.and_then(|s| serde_json::from_str(&s).ok()),
-        result: r
-            .get::<_, Option<String>>("result")?
-            .map(|s| resolved_path(&s, root)),
-        queued_at: r.get("queued_at")?,
-        started_at: r.get("started_at")?,
-        finished_at: r.get("finished_at")?,
-        not_before: r.get("not_before")?,
-        worker: r.get("worker")?,
-        lease_until: r.get("lease_until")?,
-    })
+    super::job_of_row!(r, get, i64, root)
 }
 
 fn row_to_worker(r: &rusqlite::Row) -> rusqlite::Result<WorkerInfo> {
-    Ok(WorkerInfo {
-        name: r.get("name")?,
-        host: r.get("host")?,
-        pid: r.get("pid")?,
-        started_at: r.get("started_at")?,
-        heartbeat_at: r.get("heartbeat_at")?,
-        job: r.get("job")?,
-        jobs_done: r.get::<_, i64>("jobs_done")?.max(0) as u64,
-    })
+    super::worker_of_row!(r, get, i64)
 }
 
 impl SqliteJournal {
@@ -224,10 +196,7 @@ impl Backend for SqliteJournal {
                 params![id, worker, stored_path(result, &root), seconds.to_string(), t],
             ),
             Finish::Failed { stage, error, retry_at } => {
-                let (state, not_before) = match retry_at {
-                    Some(at) => ("queued", *at),
-                    None => ("failed", 0.0),
-                };
+                let (state, not_before) = Finish::failed_state(*retry_at);
                 tx.execute(
                     &format!("UPDATE captures SET state = ?3, stage = ?4, error = ?5, not_before = ?6, finished_at = ?7, worker = NULL {owner}"),
                     params![id, worker, state, stage, error, not_before, t],
