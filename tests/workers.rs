@@ -57,10 +57,15 @@ fn config(dir: &Path, url: &str, program: Option<&Path>, extra: &str) -> PathBuf
 }
 
 fn spawn(args: &[&str], log: &Path) -> Child {
+    spawn_with_job_s(args, log, 0.2)
+}
+
+/// As `spawn`, the stand-in job taking `job_s` seconds.
+fn spawn_with_job_s(args: &[&str], log: &Path, job_s: f64) -> Child {
     Command::new(BIN)
         .args(args)
         .env("CONFORMD_LOG", "info")
-        .env("FAKE_JOB_S", "0.2")
+        .env("FAKE_JOB_S", job_s.to_string())
         .stdin(Stdio::null())
         .stdout(Stdio::null())
         .stderr(std::fs::File::create(log).unwrap())
@@ -104,6 +109,110 @@ fn assert_complete(results: &Path, id: &str) {
     }
 }
 
+/// The captures the workers' logs say they published (recorded done), sorted.
+fn published(logs: &[PathBuf]) -> Vec<String> {
+    let mut ids: Vec<String> = logs
+        .iter()
+        .flat_map(|l| {
+            std::fs::read_to_string(l)
+                .unwrap()
+                .lines()
+                .filter(|line| line.contains(" done"))
+                .filter_map(|line| {
+                    line.split_whitespace()
+                        .find_map(|w| w.strip_prefix("capture="))
+                        .map(str::to_string)
+                })
+                .collect::<Vec<_>>()
+        })
+        .collect();
+    ids.sort();
+    ids
+}
+
+/// Enqueues `n` jobs `<prefix>-NN` with their (empty) capture folders.
+fn enqueue(j: &mut journal::Journal, data: &Path, prefix: &str, n: usize) -> Vec<String> {
+    let ids: Vec<String> = (0..n).map(|i| format!("{prefix}-{i:02}")).collect();
+    for id in &ids {
+        let set = data.join("captures").join(id);
+        std::fs::create_dir_all(&set).unwrap();
+        assert!(j.enqueue(id, &set, None).unwrap());
+    }
+    ids
+}
+
+#[test]
+fn a_worker_that_stalls_past_its_lease_finds_its_job_taken_and_discards_its_result() {
+    let pg = TempPostgres::start().unwrap();
+    let url = pg.database("stall").unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = config(dir.path(), &url, Some(&stand_in(dir.path())), "");
+    let data = dir.path().join("data");
+    let mut j = journal::open(Some(&url), &data).unwrap();
+    let ids = enqueue(&mut j, &data, "stall", 4);
+    let logs: Vec<PathBuf> = (0..2)
+        .map(|k| dir.path().join(format!("worker-{k}.log")))
+        .collect();
+    let cfg_s = cfg.display().to_string();
+    let mut workers: Vec<Child> = logs
+        .iter()
+        .map(|l| spawn_with_job_s(&["worker", "--config", &cfg_s], l, 1.0))
+        .collect();
+    let slow = workers[0].id();
+    let mut held = String::new();
+    wait_until("the slow worker holding a job", 30.0, || {
+        j.list(Some(State::Running), 10)
+            .unwrap()
+            .into_iter()
+            .find(|r| {
+                r.worker
+                    .as_deref()
+                    .is_some_and(|w| w.ends_with(&format!(":{slow}")))
+            })
+            .map(|job| held = job.id)
+            .is_some()
+    });
+    // it stalls (stopped, job and all) past its 2 s lease: the other takes the job
+    signal(slow, "-STOP");
+    wait_until("the job taken by the other worker", 30.0, || {
+        j.get(&held)
+            .unwrap()
+            .unwrap()
+            .worker
+            .is_some_and(|w| !w.ends_with(&format!(":{slow}")))
+    });
+    signal(slow, "-CONT");
+    wait_until("all 4 done", 60.0, || j.counts().unwrap().done == 4);
+    // the late one finishes its run too, finds the job not its own, discards its result
+    wait_until("the late writer's word", 30.0, || {
+        std::fs::read_to_string(&logs[0])
+            .unwrap()
+            .contains("another worker took it: its outcome is discarded")
+    });
+    assert_eq!(
+        published(&logs),
+        ids,
+        "a job published twice, or not at all"
+    );
+    let results = data.join("results");
+    for id in &ids {
+        assert_complete(&results, id);
+    }
+    wait_until("no staged result left", 10.0, || {
+        hidden(&results).is_empty()
+    });
+    let runs = std::fs::read_to_string(data.join("runs.log")).unwrap();
+    assert_eq!(
+        runs.lines().filter(|l| l.starts_with(&held)).count(),
+        2,
+        "{runs}"
+    );
+    for w in &mut workers {
+        signal(w.id(), "-TERM");
+        assert!(w.wait().unwrap().success());
+    }
+}
+
 #[test]
 fn three_workers_60_jobs_one_killed_mid_job_every_job_done_exactly_once() {
     let pg = TempPostgres::start().unwrap();
@@ -113,12 +222,7 @@ fn three_workers_60_jobs_one_killed_mid_job_every_job_done_exactly_once() {
     let data = dir.path().join("data");
     let results = data.join("results");
     let mut j = journal::open(Some(&url), &data).unwrap();
-    let ids: Vec<String> = (0..60).map(|i| format!("pig-{i:02}")).collect();
-    for id in &ids {
-        let set = data.join("captures").join(id);
-        std::fs::create_dir_all(&set).unwrap();
-        assert!(j.enqueue(id, &set, None).unwrap());
-    }
+    let ids = enqueue(&mut j, &data, "pig", 60);
     let logs: Vec<PathBuf> = (0..3)
         .map(|k| dir.path().join(format!("worker-{k}.log")))
         .collect();
@@ -166,23 +270,11 @@ fn three_workers_60_jobs_one_killed_mid_job_every_job_done_exactly_once() {
     }
     assert!(hidden(&results).is_empty(), "{:?}", hidden(&results));
     // exactly once: each job was recorded done (its result published) by one worker
-    let mut published: Vec<String> = logs
-        .iter()
-        .flat_map(|l| {
-            std::fs::read_to_string(l)
-                .unwrap()
-                .lines()
-                .filter(|line| line.contains(" done"))
-                .filter_map(|line| {
-                    line.split_whitespace()
-                        .find_map(|w| w.strip_prefix("capture="))
-                        .map(str::to_string)
-                })
-                .collect::<Vec<_>>()
-        })
-        .collect();
-    published.sort();
-    assert_eq!(published, ids, "a job published twice, or not at all");
+    assert_eq!(
+        published(&logs),
+        ids,
+        "a job published twice, or not at all"
+    );
     // the victim ran at most the one job again; every job ran at least once
     let runs = std::fs::read_to_string(data.join("runs.log")).unwrap();
     assert!(
@@ -280,6 +372,16 @@ fn a_station_that_loses_its_database_keeps_its_captures_and_hands_them_over_once
     assert_eq!(runs.lines().count(), 10, "processed more than once: {runs}");
     let s = status(port).unwrap();
     assert_eq!(s["journal"]["online"], true);
+    let page = ureq::get(&format!("http://127.0.0.1:{port}/"))
+        .call()
+        .unwrap()
+        .into_body()
+        .read_to_string()
+        .unwrap();
+    assert!(
+        page.contains("id=\"workers\"") && page.contains(":daemon:farm"),
+        "the status page lists no workers"
+    );
     assert_eq!(
         s["journal"]["waiting_handover"].as_array().unwrap().len(),
         0
