@@ -272,18 +272,27 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
             out,
             num_disparities,
             block_size,
+            truth,
+            truth_scale,
+            truth_from_x,
         } => {
             let o = conformd::stereo::disparity::SgbmOptions {
                 num_disparities,
                 block_size,
                 ..Default::default()
             };
-            let share = jobs::disparity(&left, &right, &o, &out)?;
+            let d = jobs::disparity(&left, &right, &o, &out)?;
             println!(
                 "{:.1}% of pixels have a disparity\nwrote {}",
-                share * 100.0,
+                d.valid_share() * 100.0,
                 out.display()
             );
+            if let Some(t) = truth {
+                println!(
+                    "{}",
+                    jobs::score_disparity(&d, &t, truth_scale, truth_from_x)?
+                );
+            }
         }
         Cmd::Cameras => {
             let list = conformd::rig::v4l2::list_devices();

@@ -542,3 +542,65 @@ fn rig_file_reconstruct_settings() {
         .to_string();
     assert!(e.contains("rig.toml") && e.contains("voxels"), "{e}");
 }
+
+/// Recorded pairs with their truth (tests/data/stereo): the truth readers decode each
+/// format to the disparity range of its benchmark, and `disparity --truth` reports the
+/// bad-pixel share and coverage an operator sees.
+#[test]
+fn recorded_pairs_are_scored_against_their_ground_truth() {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/stereo");
+    for (truth, lo, hi) in [
+        ("cones/disp2.png", 50.0, 64.0),
+        ("teddy/disp2.png", 45.0, 64.0),
+        ("kitti-000070/disp_noc.png", 60.0, 128.0),
+    ] {
+        let t = conformd::stereo::truth::read_truth(&root.join(truth), None).unwrap();
+        let max = t
+            .values
+            .iter()
+            .copied()
+            .filter(|v| v.is_finite())
+            .fold(0.0, f32::max);
+        assert!(max > lo && max < hi, "{truth}: largest disparity {max}");
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_conformd"))
+        .args(["disparity", "--num-disparities", "64", "--truth"])
+        .arg(root.join("cones/disp2.png"))
+        .arg(root.join("cones/im2.png"))
+        .arg(root.join("cones/im6.png"))
+        .arg("--out")
+        .arg(dir.path().join("d.pfm"))
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{text}");
+    // "against the truth: 7.77% of valid pixels more than 1 px off ..., coverage 61.9% ..."
+    let pct = |after: &str| -> f64 {
+        let s = &text[text.find(after).unwrap() + after.len()..];
+        s.trim_start()
+            .split('%')
+            .next()
+            .unwrap()
+            .trim()
+            .parse()
+            .unwrap()
+    };
+    let (bad, coverage) = (pct("against the truth:"), pct("coverage"));
+    assert!(bad > 0.0 && bad < 15.0, "{text}");
+    assert!(coverage > 30.0 && coverage <= 100.0, "{text}");
+    // a truth of another size is refused with both sizes named
+    let e = conformd::jobs::score_disparity(
+        &conformd::stereo::disparity::Disparity {
+            width: 10,
+            height: 10,
+            values: vec![1.0; 100],
+        },
+        &root.join("cones/disp2.png"),
+        None,
+        0,
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("10 x 10") && e.contains("450 x 375"), "{e}");
+}

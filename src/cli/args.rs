@@ -251,6 +251,17 @@ pub enum Cmd {
         num_disparities: i32,
         #[arg(long, default_value_t = 5)]
         block_size: i32,
+        /// a ground-truth disparity of the left image (.pfm; .png: 16-bit /256 as KITTI,
+        /// 8-bit /4 as Middlebury's quarter-size sets): prints the bad-pixel share
+        #[arg(long)]
+        truth: Option<PathBuf>,
+        /// divide the truth's PNG values by this instead
+        #[arg(long)]
+        truth_scale: Option<f64>,
+        /// score columns from this one on (e.g. the disparity range, where the left
+        /// image's first columns have no match in the right)
+        #[arg(long, default_value_t = 0)]
+        truth_from_x: u32,
     },
     /// List V4L2 cameras with their stable names, formats, sizes and controls.
     Cameras,

@@ -377,7 +377,7 @@ pub fn disparity(
     right: &Path,
     opts: &crate::stereo::disparity::SgbmOptions,
     out: &Path,
-) -> Result<f64, JobError> {
+) -> Result<crate::stereo::disparity::Disparity, JobError> {
     let read = |p: &Path| -> Result<image::GrayImage, JobError> {
         Ok(image::open(p)
             .map_err(|e| JobError::Usage(format!("{}: {e}", p.display())))?
@@ -441,7 +441,20 @@ pub fn disparity(
         d.pfm()
     };
     write_atomic(out, &bytes)?;
-    Ok(d.valid_share())
+    Ok(d)
+}
+
+/// How a disparity map compares with a ground truth (`--truth`): the truth file, its
+/// scale (None: the file type's own) and the first column scored.
+pub fn score_disparity(
+    d: &crate::stereo::disparity::Disparity,
+    truth: &Path,
+    scale: Option<f64>,
+    min_x: u32,
+) -> Result<crate::stereo::truth::TruthScore, JobError> {
+    let t = crate::stereo::truth::read_truth(truth, scale).map_err(JobError::Usage)?;
+    crate::stereo::truth::score(d, &t, min_x)
+        .map_err(|e| JobError::Usage(format!("{}: {e}", truth.display())))
 }
 
 /// Renders chessboard calibration views for every pod of the rig: `out/<pod>/leftNN.png`

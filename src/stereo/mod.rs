@@ -6,3 +6,4 @@ pub mod calibrate;
 pub mod disparity;
 pub mod reconstruct;
 pub mod rig;
+pub mod truth;

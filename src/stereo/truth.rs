@@ -1,0 +1,208 @@
+//! Ground-truth disparity of recorded stereo pairs (Middlebury PFM and quarter-size PNG,
+//! KITTI 16-bit PNG) and the figures a disparity map is judged by against it: the share
+//! of bad pixels (more than 1 px off) among the valid ones, and the coverage.
+
+use super::disparity::Disparity;
+use std::path::Path;
+
+/// A ground-truth disparity map; NaN where the truth is unknown.
+#[derive(Debug, Clone)]
+pub struct Truth {
+    pub width: u32,
+    pub height: u32,
+    pub values: Vec<f32>,
+}
+
+/// How a disparity map compares with the truth, over the pixels whose truth is known
+/// (and at column `min_x` or beyond).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct TruthScore {
+    /// pixels with a known truth
+    pub known: usize,
+    /// of those, the share the map gives a disparity
+    pub coverage: f64,
+    /// of the given ones, the share more than 1 px (and 2 px) off
+    pub bad1: f64,
+    pub bad2: f64,
+    /// mean absolute error of the given ones, pixels
+    pub mean_abs: f64,
+}
+
+impl std::fmt::Display for TruthScore {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "against the truth: {:.2}% of valid pixels more than 1 px off ({:.2}% more than 2 px), mean error {:.3} px, coverage {:.1}% of {} pixels with a known truth",
+            self.bad1 * 100.0,
+            self.bad2 * 100.0,
+            self.mean_abs,
+            self.coverage * 100.0,
+            self.known
+        )
+    }
+}
+
+/// Reads a ground truth: `.pfm` (Middlebury 2014: float, rows bottom-up, inf unknown), or
+/// `.png`, 0 unknown, divided by `scale`: by default 256 for a 16-bit PNG (KITTI) and 4
+/// for an 8-bit one (Middlebury 2001-2006 quarter-size sets).
+pub fn read_truth(path: &Path, scale: Option<f64>) -> Result<Truth, String> {
+    let name = path.display();
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .unwrap_or("")
+        .to_ascii_lowercase();
+    match ext.as_str() {
+        "pfm" => {
+            let bytes = std::fs::read(path).map_err(|e| format!("{name}: {e}"))?;
+            parse_pfm(&bytes).map_err(|e| format!("{name}: {e}"))
+        }
+        "png" => {
+            let img = image::open(path).map_err(|e| format!("{name}: {e}"))?;
+            let sixteen = matches!(
+                img.color(),
+                image::ColorType::L16 | image::ColorType::La16 | image::ColorType::Rgb16
+            );
+            let scale = scale.unwrap_or(if sixteen { 256.0 } else { 4.0 });
+            if !(scale > 0.0 && scale.is_finite()) {
+                return Err(format!("{name}: the truth scale must be positive"));
+            }
+            let g = img.to_luma16();
+            // to_luma16 stretches 8-bit values by 257: back to the file's own numbers
+            let unit = if sixteen { 1.0 } else { 257.0 };
+            Ok(Truth {
+                width: g.width(),
+                height: g.height(),
+                values: g
+                    .as_raw()
+                    .iter()
+                    .map(|&v| {
+                        if v == 0 {
+                            f32::NAN
+                        } else {
+                            (v as f64 / unit / scale) as f32
+                        }
+                    })
+                    .collect(),
+            })
+        }
+        _ => Err(format!(
+            "{name}: a ground truth is read from .pfm or .png (16-bit /256, 8-bit /4)"
+        )),
+    }
+}
+
+fn parse_pfm(bytes: &[u8]) -> Result<Truth, String> {
+    // header: "Pf", width height, scale (negative: little-endian), each on its line
+    let mut fields = Vec::new();
+    let mut start = 0;
+    let mut i = 0;
+    while fields.len() < 4 && i < bytes.len().min(256) {
+        if bytes[i].is_ascii_whitespace() {
+            if i > start {
+                fields.push(String::from_utf8_lossy(&bytes[start..i]).to_string());
+            }
+            start = i + 1;
+        }
+        i += 1;
+    }
+    if fields.len() < 4 || fields[0] != "Pf" {
+        return Err("not a one-channel PFM (header 'Pf')".into());
+    }
+    let num = |s: &str| {
+        s.parse::<f64>()
+            .map_err(|_| format!("bad PFM header '{s}'"))
+    };
+    let (w, h, scale) = (num(&fields[1])?, num(&fields[2])?, num(&fields[3])?);
+    if !(w >= 1.0 && h >= 1.0 && w * h <= 1e8) {
+        return Err(format!("PFM size {w} x {h} out of range"));
+    }
+    let (w, h) = (w as usize, h as usize);
+    let data = &bytes[start..];
+    if data.len() < w * h * 4 {
+        return Err(format!(
+            "PFM data is truncated: {} bytes for {w} x {h}",
+            data.len()
+        ));
+    }
+    let mut values = vec![f32::NAN; w * h];
+    for (k, c) in data.chunks_exact(4).take(w * h).enumerate() {
+        let b = [c[0], c[1], c[2], c[3]];
+        let v = if scale < 0.0 {
+            f32::from_le_bytes(b)
+        } else {
+            f32::from_be_bytes(b)
+        };
+        // rows bottom-up in the file
+        let (x, y) = (k % w, h - 1 - k / w);
+        values[y * w + x] = if v.is_finite() { v } else { f32::NAN };
+    }
+    Ok(Truth {
+        width: w as u32,
+        height: h as u32,
+        values,
+    })
+}
+
+/// Scores `d` against `truth` over the known pixels at column `min_x` or beyond.
+pub fn score(d: &Disparity, truth: &Truth, min_x: u32) -> Result<TruthScore, String> {
+    if (d.width, d.height) != (truth.width, truth.height) {
+        return Err(format!(
+            "the disparity map is {} x {} but the truth {} x {}",
+            d.width, d.height, truth.width, truth.height
+        ));
+    }
+    let (mut known, mut valid, mut bad1, mut bad2, mut abs) = (0usize, 0usize, 0usize, 0usize, 0.0);
+    for (k, (&v, &t)) in d.values.iter().zip(&truth.values).enumerate() {
+        if (k as u32 % d.width) < min_x || t.is_nan() {
+            continue;
+        }
+        known += 1;
+        if v.is_finite() {
+            valid += 1;
+            let e = (v - t).abs() as f64;
+            abs += e;
+            bad1 += (e > 1.0) as usize;
+            bad2 += (e > 2.0) as usize;
+        }
+    }
+    let share = |n: usize, of: usize| if of > 0 { n as f64 / of as f64 } else { 0.0 };
+    Ok(TruthScore {
+        known,
+        coverage: share(valid, known),
+        bad1: share(bad1, valid),
+        bad2: share(bad2, valid),
+        mean_abs: if valid > 0 { abs / valid as f64 } else { 0.0 },
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_pfm_reads_back_upright_and_scores_what_it_was_given() {
+        let d = Disparity {
+            width: 3,
+            height: 2,
+            values: vec![1.0, 2.0, f32::INFINITY, 4.0, 5.5, 6.0],
+        };
+        let t = parse_pfm(&d.pfm()).unwrap();
+        assert_eq!((t.width, t.height), (3, 2));
+        assert_eq!(t.values[..2], [1.0, 2.0]);
+        assert!(t.values[2].is_nan());
+        let mut guess = d.clone();
+        guess.values[4] = 7.0; // 1.5 px off
+        guess.values[5] = f32::INFINITY; // not given
+        let s = score(&guess, &t, 0).unwrap();
+        assert_eq!(s.known, 5);
+        assert!((s.coverage - 0.8).abs() < 1e-12);
+        assert!((s.bad1 - 0.25).abs() < 1e-12 && s.bad2 == 0.0);
+        assert!(parse_pfm(b"P5\n1 1\n255\n").is_err());
+        assert!(
+            parse_pfm(b"Pf\n4 4\n-1\n\0\0")
+                .unwrap_err()
+                .contains("truncated")
+        );
+    }
+}
