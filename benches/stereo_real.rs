@@ -2,11 +2,10 @@
 //! development set): conformd's defaults against stock OpenCV SGBM_3WAY with the ordinary
 //! settings of OpenCV's own sample (block 5, P1 200, P2 800, uniqueness 10, speckle 100 /
 //! 32, left-right 1, pre-filter cap 63): the share of valid pixels more than 1 px off and
-//! the coverage, per pair; and a natural-texture candidate (the defaults without the
-//! contrast mask and the sub-pixel step, both tuned on the virtual rig's projected
-//! speckle). Run: `cargo bench --bench stereo_real`.
+//! the coverage, per pair, for both profiles (`speckle`, the default, tuned on the
+//! virtual rig's projected pattern, and `natural`). Run: `cargo bench --bench stereo_real`.
 
-use conformd::stereo::disparity::{self, Disparity, SgbmOptions};
+use conformd::stereo::disparity::{self, Disparity, Profile, SgbmOptions};
 use conformd::stereo::truth::{read_truth, score};
 use opencv::calib3d::{StereoSGBM, StereoSGBM_MODE_SGBM_3WAY};
 use opencv::prelude::*;
@@ -71,7 +70,7 @@ fn main() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/stereo");
     println!(
         "{:<34} {:>18} {:>18} {:>18}   (bad > 1 px of valid / coverage)",
-        "pair", "conformd default", "natural candidate", "stock SGBM_3WAY"
+        "pair", "speckle (default)", "natural profile", "stock SGBM_3WAY"
     );
     for (name, l, r, t, ndisp) in PAIRS {
         let (lg, rg) = (grey(&root.join(l)), grey(&root.join(r)));
@@ -86,9 +85,8 @@ fn main() {
             score(&d, &truth, 0).unwrap()
         };
         let natural = SgbmOptions {
-            min_contrast: 0.0,
-            subpixel_steps: 0,
-            ..o.clone()
+            num_disparities: ndisp,
+            ..SgbmOptions::for_profile(Profile::Natural)
         };
         let cells = [
             run(&o),

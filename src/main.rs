@@ -272,14 +272,25 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
             out,
             num_disparities,
             block_size,
+            profile,
             truth,
             truth_scale,
             truth_from_x,
         } => {
-            let o = conformd::stereo::disparity::SgbmOptions {
+            use conformd::stereo::disparity::{Profile, SgbmOptions};
+            let profile = match profile.as_str() {
+                "speckle" => Profile::Speckle,
+                "natural" => Profile::Natural,
+                other => {
+                    return Err(jobs::JobError::Usage(format!(
+                        "--profile {other}: expected speckle or natural"
+                    )));
+                }
+            };
+            let o = SgbmOptions {
                 num_disparities,
                 block_size,
-                ..Default::default()
+                ..SgbmOptions::for_profile(profile)
             };
             let d = jobs::disparity(&left, &right, &o, &out)?;
             println!(

@@ -604,3 +604,84 @@ fn recorded_pairs_are_scored_against_their_ground_truth() {
     .to_string();
     assert!(e.contains("10 x 10") && e.contains("450 x 375"), "{e}");
 }
+
+/// Issue 14's bar on the recorded pairs: the natural-texture profile is no worse than
+/// stock OpenCV SGBM_3WAY (its sample's settings: block 5, P1 200, P2 800) in bad pixels
+/// (more than 1 px off, of the valid ones), at equal or higher coverage, on every pair;
+/// and a rig file names the profile.
+#[test]
+fn the_natural_profile_beats_stock_sgbm_on_every_recorded_pair() {
+    use conformd::stereo::disparity::{self, Profile, SgbmOptions};
+    use conformd::stereo::truth::{read_truth, score};
+    use opencv::prelude::*;
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/stereo");
+    for (l, r, t, ndisp) in [
+        ("cones/im2.png", "cones/im6.png", "cones/disp2.png", 64),
+        ("teddy/im2.png", "teddy/im6.png", "teddy/disp2.png", 64),
+        (
+            "kitti-000070/left.png",
+            "kitti-000070/right.png",
+            "kitti-000070/disp_noc.png",
+            128,
+        ),
+    ] {
+        let lg = image::open(root.join(l)).unwrap().to_luma8();
+        let rg = image::open(root.join(r)).unwrap().to_luma8();
+        let truth = read_truth(&root.join(t), None).unwrap();
+        let o = SgbmOptions {
+            num_disparities: ndisp,
+            ..SgbmOptions::for_profile(Profile::Natural)
+        };
+        let ours =
+            disparity::disparity(lg.as_raw(), rg.as_raw(), lg.width(), lg.height(), &o).unwrap();
+        let ours = score(&ours, &truth, 0).unwrap();
+        let mat = |g: &image::GrayImage| {
+            opencv::core::Mat::new_rows_cols_with_data(
+                g.height() as i32,
+                g.width() as i32,
+                g.as_raw(),
+            )
+            .unwrap()
+            .try_clone()
+            .unwrap()
+        };
+        let mut sgbm = opencv::calib3d::StereoSGBM::create(
+            0,
+            ndisp,
+            5,
+            200,
+            800,
+            1,
+            63,
+            10,
+            100,
+            32,
+            opencv::calib3d::StereoSGBM_MODE_SGBM_3WAY,
+        )
+        .unwrap();
+        let mut d = opencv::core::Mat::default();
+        sgbm.compute(&mat(&lg), &mat(&rg), &mut d).unwrap();
+        let stock = score(&disparity::to_pixels(&d, 0).unwrap(), &truth, 0).unwrap();
+        assert!(
+            ours.bad1 <= stock.bad1 && ours.coverage >= stock.coverage,
+            "{l}: natural {:.2}% bad at {:.1}% coverage, stock {:.2}% at {:.1}%",
+            ours.bad1 * 100.0,
+            ours.coverage * 100.0,
+            stock.bad1 * 100.0,
+            stock.coverage * 100.0
+        );
+    }
+    // named in a rig file: the profile sets the defaults, given keys override them
+    let sgbm: SgbmOptions = toml::from_str("profile = \"natural\"\nblock_size = 7\n").unwrap();
+    assert_eq!(sgbm.profile, Profile::Natural);
+    assert_eq!(
+        (sgbm.block_size, sgbm.min_contrast, sgbm.subpixel_steps),
+        (7, 0.0, 0)
+    );
+    let sgbm: SgbmOptions = toml::from_str("").unwrap();
+    assert_eq!(sgbm.profile, Profile::Speckle);
+    assert!(sgbm.min_contrast > 0.0 && sgbm.subpixel_steps > 0);
+    let e = toml::from_str::<SgbmOptions>("profile = \"sunny\"").unwrap_err();
+    assert!(e.to_string().contains("sunny"), "{e}");
+    assert!(toml::from_str::<SgbmOptions>("min_contrst = 1.0").is_err());
+}

@@ -251,6 +251,10 @@ pub enum Cmd {
         num_disparities: i32,
         #[arg(long, default_value_t = 5)]
         block_size: i32,
+        /// what the cameras see: `speckle` (a projected pattern; the default) or
+        /// `natural` (passive texture), as `[reconstruct.sgbm] profile` in a rig file
+        #[arg(long, default_value = "speckle")]
+        profile: String,
         /// a ground-truth disparity of the left image (.pfm; .png: 16-bit /256 as KITTI,
         /// 8-bit /4 as Middlebury's quarter-size sets): prints the bad-pixel share
         #[arg(long)]

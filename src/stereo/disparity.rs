@@ -8,10 +8,26 @@ use opencv::core::{self, CV_8UC1, CV_32F, Mat, Point, Size};
 use opencv::imgproc;
 use opencv::prelude::*;
 
-/// SGBM settings; `p1`/`p2` default to 8 and 32 x block size squared (one channel).
+/// What the cameras see, which decides the defaults of the other settings.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Profile {
+    /// a projected speckle pattern on the subject (the virtual rig, an active rig): a
+    /// contrast mask drops the unlit background, and a sub-pixel step lowers depth noise
+    #[default]
+    Speckle,
+    /// natural texture (passive cameras, recorded benchmark pairs): smooth surfaces are
+    /// matched by SGBM's smoothness, so no contrast mask, and no sub-pixel step (it
+    /// moves more pixels past 1 px than it brings closer)
+    Natural,
+}
+
+/// SGBM settings; `p1`/`p2` are 8 and 32 x block size squared (one channel). Read from
+/// a rig file, `profile` picks the defaults and every other key given overrides them.
 #[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
-#[serde(default, deny_unknown_fields)]
+#[serde(from = "SgbmKeys")]
 pub struct SgbmOptions {
+    pub profile: Profile,
     pub min_disparity: i32,
     /// a multiple of 16
     pub num_disparities: i32,
@@ -40,9 +56,76 @@ pub struct SgbmOptions {
 
 impl Default for SgbmOptions {
     fn default() -> Self {
+        SgbmOptions::for_profile(Profile::Speckle)
+    }
+}
+
+/// The keys of `[reconstruct.sgbm]` as written: any may be left out.
+#[derive(serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+struct SgbmKeys {
+    profile: Option<Profile>,
+    min_disparity: Option<i32>,
+    num_disparities: Option<i32>,
+    block_size: Option<i32>,
+    uniqueness_ratio: Option<i32>,
+    speckle_window_size: Option<i32>,
+    speckle_range: Option<i32>,
+    disp12_max_diff: Option<i32>,
+    pre_filter_cap: Option<i32>,
+    min_contrast: Option<f64>,
+    edge_margin: Option<i32>,
+    max_jump: Option<f64>,
+    subpixel_steps: Option<u32>,
+    subpixel_window: Option<i32>,
+}
+
+impl From<SgbmKeys> for SgbmOptions {
+    fn from(k: SgbmKeys) -> SgbmOptions {
+        let mut o = SgbmOptions::for_profile(k.profile.unwrap_or_default());
+        macro_rules! given {
+            ($($f:ident),*) => {$(if let Some(v) = k.$f { o.$f = v; })*};
+        }
+        given!(
+            min_disparity,
+            num_disparities,
+            block_size,
+            uniqueness_ratio,
+            speckle_window_size,
+            speckle_range,
+            disp12_max_diff,
+            pre_filter_cap,
+            min_contrast,
+            edge_margin,
+            max_jump,
+            subpixel_steps,
+            subpixel_window
+        );
+        o
+    }
+}
+
+impl SgbmOptions {
+    /// The defaults for what the cameras see.
+    pub fn for_profile(profile: Profile) -> SgbmOptions {
+        let speckle = SgbmOptions::speckle();
+        match profile {
+            Profile::Speckle => speckle,
+            // chosen on the recorded pairs of tests/data/stereo (benches/stereo_real.rs)
+            Profile::Natural => SgbmOptions {
+                profile,
+                min_contrast: 0.0,
+                subpixel_steps: 0,
+                ..speckle
+            },
+        }
+    }
+
+    fn speckle() -> Self {
         // Wrong matches are worse than holes for a scanner: a strict uniqueness ratio,
         // speckle filtering and the left-right check drop doubtful pixels.
         SgbmOptions {
+            profile: Profile::Speckle,
             min_disparity: 0,
             num_disparities: 128,
             block_size: 5,
