@@ -476,3 +476,23 @@ fn the_example_station_file_is_complete_and_valid() {
         "{stdout}"
     );
 }
+
+#[test]
+fn the_example_worker_file_is_valid() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/worker.example.toml");
+    let cfg = StationConfig::load(&path).expect("the worker example loads");
+    assert!(
+        cfg.journal
+            .url
+            .as_deref()
+            .is_some_and(|u| u.starts_with("postgres://"))
+    );
+    assert_eq!((cfg.worker.jobs, cfg.journal.lease_s), (1, 30.0));
+    assert!(cfg.template.is_some() && cfg.rig.is_some() && cfg.capture.is_none());
+    // a journal URL that is not a database is refused with its line
+    let bad = std::fs::read_to_string(&path)
+        .unwrap()
+        .replace("postgres://conformd@", "mysql://conformd@");
+    let e = StationConfig::parse(&bad, &path).unwrap_err().to_string();
+    assert!(e.contains("[journal]") && e.contains("postgres://"), "{e}");
+}
