@@ -62,11 +62,13 @@ verify-unit:
 demo: deps
 	$(CARGO) run --locked --release -- demo --out $(DEMO_OUT)
 
-bench: deps
+bench: test-deps
 	$(CARGO) bench --locked --bench conform
 	$(CARGO) bench --locked --bench model
 	$(CARGO) bench --locked --bench stereo
+	$(CARGO) bench --locked --bench stereo_real
 	$(CARGO) bench --locked --bench daemon
+	$(CARGO) bench --locked --bench journal
 
 clean:
 	$(CARGO) clean
