@@ -5,10 +5,8 @@
 //! the coverage, per pair, for both profiles (`speckle`, the default, tuned on the
 //! virtual rig's projected pattern, and `natural`). Run: `cargo bench --bench stereo_real`.
 
-use conformd::stereo::disparity::{self, Disparity, Profile, SgbmOptions};
+use conformd::stereo::disparity::{self, Profile, SgbmOptions};
 use conformd::stereo::truth::{read_truth, score};
-use opencv::calib3d::{StereoSGBM, StereoSGBM_MODE_SGBM_3WAY};
-use opencv::prelude::*;
 use std::path::Path;
 
 /// (name, left, right, truth, disparities)
@@ -40,32 +38,6 @@ fn grey(p: &Path) -> image::GrayImage {
     image::open(p).unwrap().to_luma8()
 }
 
-fn stock(l: &image::GrayImage, r: &image::GrayImage, ndisp: i32) -> Disparity {
-    let mat = |g: &image::GrayImage| {
-        Mat::new_rows_cols_with_data(g.height() as i32, g.width() as i32, g.as_raw())
-            .unwrap()
-            .try_clone()
-            .unwrap()
-    };
-    let mut sgbm = StereoSGBM::create(
-        0,
-        ndisp,
-        5,
-        200,
-        800,
-        1,
-        63,
-        10,
-        100,
-        32,
-        StereoSGBM_MODE_SGBM_3WAY,
-    )
-    .unwrap();
-    let mut d = Mat::default();
-    sgbm.compute(&mat(l), &mat(r), &mut d).unwrap();
-    disparity::to_pixels(&d, 0).unwrap()
-}
-
 fn main() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/stereo");
     println!(
@@ -91,7 +63,13 @@ fn main() {
         let cells = [
             run(&o),
             run(&natural),
-            score(&stock(&lg, &rg, ndisp), &truth, 0).unwrap(),
+            score(
+                &disparity::stock_sgbm(lg.as_raw(), rg.as_raw(), lg.width(), lg.height(), ndisp)
+                    .unwrap(),
+                &truth,
+                0,
+            )
+            .unwrap(),
         ]
         .map(|s| format!("{:>6.2}% / {:>5.1}%", s.bad1 * 100.0, s.coverage * 100.0));
         println!(

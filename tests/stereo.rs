@@ -613,7 +613,6 @@ fn recorded_pairs_are_scored_against_their_ground_truth() {
 fn the_natural_profile_beats_stock_sgbm_on_every_recorded_pair() {
     use conformd::stereo::disparity::{self, Profile, SgbmOptions};
     use conformd::stereo::truth::{read_truth, score};
-    use opencv::prelude::*;
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/stereo");
     for (l, r, t, ndisp) in [
         ("cones/im2.png", "cones/im6.png", "cones/disp2.png", 64),
@@ -635,33 +634,9 @@ fn the_natural_profile_beats_stock_sgbm_on_every_recorded_pair() {
         let ours =
             disparity::disparity(lg.as_raw(), rg.as_raw(), lg.width(), lg.height(), &o).unwrap();
         let ours = score(&ours, &truth, 0).unwrap();
-        let mat = |g: &image::GrayImage| {
-            opencv::core::Mat::new_rows_cols_with_data(
-                g.height() as i32,
-                g.width() as i32,
-                g.as_raw(),
-            )
-            .unwrap()
-            .try_clone()
-            .unwrap()
-        };
-        let mut sgbm = opencv::calib3d::StereoSGBM::create(
-            0,
-            ndisp,
-            5,
-            200,
-            800,
-            1,
-            63,
-            10,
-            100,
-            32,
-            opencv::calib3d::StereoSGBM_MODE_SGBM_3WAY,
-        )
-        .unwrap();
-        let mut d = opencv::core::Mat::default();
-        sgbm.compute(&mat(&lg), &mat(&rg), &mut d).unwrap();
-        let stock = score(&disparity::to_pixels(&d, 0).unwrap(), &truth, 0).unwrap();
+        let stock = disparity::stock_sgbm(lg.as_raw(), rg.as_raw(), lg.width(), lg.height(), ndisp)
+            .unwrap();
+        let stock = score(&stock, &truth, 0).unwrap();
         assert!(
             ours.bad1 <= stock.bad1 && ours.coverage >= stock.coverage,
             "{l}: natural {:.2}% bad at {:.1}% coverage, stock {:.2}% at {:.1}%",

@@ -242,6 +242,41 @@ pub fn disparity_mats(left: &Mat, right: &Mat, o: &SgbmOptions) -> opencv::Resul
     Mat::roi(&disp, core::Rect::new(pad, 0, left.cols(), left.rows()))?.try_clone()
 }
 
+/// Stock OpenCV SGBM_3WAY with the ordinary settings of OpenCV's own sample (block 5,
+/// P1 200, P2 800, left-right 1, pre-filter cap 63, uniqueness 10, speckle 100 / 32), no
+/// padding and no filter of ours: the floor the profiles are measured against.
+pub fn stock_sgbm(
+    left: &[u8],
+    right: &[u8],
+    width: u32,
+    height: u32,
+    num_disparities: i32,
+) -> Result<Disparity, String> {
+    let run = || -> opencv::Result<Disparity> {
+        let (l, r) = (
+            gray_mat(left, width, height)?,
+            gray_mat(right, width, height)?,
+        );
+        let mut sgbm = StereoSGBM::create(
+            0,
+            num_disparities,
+            5,
+            200,
+            800,
+            1,
+            63,
+            10,
+            100,
+            32,
+            StereoSGBM_MODE_SGBM_3WAY,
+        )?;
+        let mut d = Mat::default();
+        sgbm.compute(&l, &r, &mut d)?;
+        to_pixels(&d, 0)
+    };
+    run().map_err(|e| format!("OpenCV: {e}"))
+}
+
 /// Converts OpenCV's fixed-point disparity (16 x pixels, CV_16S) to pixels, invalid = inf.
 pub fn to_pixels(disp: &Mat, min_disparity: i32) -> opencv::Result<Disparity> {
     let raw = disp.data_typed::<i16>()?;
