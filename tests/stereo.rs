@@ -589,6 +589,38 @@ fn recorded_pairs_are_scored_against_their_ground_truth() {
     let (bad, coverage) = (pct("against the truth:"), pct("coverage"));
     assert!(bad > 0.0 && bad < 15.0, "{text}");
     assert!(coverage > 30.0 && coverage <= 100.0, "{text}");
+    // a profile or a truth the command cannot read is refused, naming what was wrong
+    for (args, expect) in [
+        (vec!["--profile", "sunny"], "--profile sunny"),
+        (vec!["--truth", "truth.txt"], "truth.txt"),
+    ] {
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_conformd"))
+            .arg("disparity")
+            .args(&args)
+            .arg(root.join("cones/im2.png"))
+            .arg(root.join("cones/im6.png"))
+            .arg("--out")
+            .arg(dir.path().join("e.pfm"))
+            .current_dir(dir.path())
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success() && err.contains(expect), "{err}");
+    }
+    std::fs::write(dir.path().join("cut.pfm"), b"Pf\n450 375\n-1\n\0\0\0\0").unwrap();
+    let e = conformd::jobs::score_disparity(
+        &conformd::stereo::disparity::Disparity {
+            width: 450,
+            height: 375,
+            values: vec![1.0; 450 * 375],
+        },
+        &dir.path().join("cut.pfm"),
+        None,
+        0,
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("cut.pfm") && e.contains("truncated"), "{e}");
     // a truth of another size is refused with both sizes named
     let e = conformd::jobs::score_disparity(
         &conformd::stereo::disparity::Disparity {

@@ -177,14 +177,15 @@ impl Backend for PgJournal {
     }
 
     fn claim(&mut self, worker: &str, lease_s: f64) -> Result<Option<Job>, JournalError> {
+        let t = now();
         self.with(|c, root| {
             c.query_opt(
                 &format!(
-                    "UPDATE captures SET state = 'running', attempts = attempts + 1, started_at = $2, worker = $3, lease_until = {DB_NOW} + $4
+                    "UPDATE captures SET state = 'running', attempts = attempts + 1, started_at = $1, worker = $2, lease_until = {DB_NOW} + $3
                      WHERE id = (SELECT id FROM captures WHERE state = 'queued' AND not_before <= $1 ORDER BY queued_at, id LIMIT 1 FOR UPDATE SKIP LOCKED)
                      RETURNING *"
                 ),
-                &[&now(), &now(), &worker, &lease_s],
+                &[&t, &worker, &lease_s],
             )?
             .map(|r| row_to_job(&r, root))
             .transpose()
