@@ -255,16 +255,55 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
             out,
             report,
             mesh,
+            truth,
+            truth_scale,
+            truth_pod,
         } => {
-            let r = jobs::reconstruct(
-                &capture,
-                &rig,
-                calibration.as_deref(),
-                &out,
-                report.as_deref(),
-                mesh,
-            )?;
+            let mut station =
+                conformd::stereo::rig::Reconstruction::load(&rig, calibration.as_deref())?;
+            let r = jobs::reconstruct_with(&mut station, &capture, &out, report.as_deref(), mesh)?;
             println!("{r}\nwrote {}", out.display());
+            if let Some(t) = truth {
+                // the scan as written is what is judged
+                let scan = conformd::mesh::io::read_mesh(&out)?;
+                println!(
+                    "{}",
+                    jobs::score_scan(&scan, &station, truth_pod.as_deref(), &t, truth_scale)?
+                );
+            }
+        }
+        Cmd::ImportPair {
+            left,
+            right,
+            calib,
+            truth,
+            num_disparities,
+            out,
+        } => {
+            let p = jobs::import_pair(
+                &left,
+                &right,
+                &calib,
+                truth.as_deref(),
+                num_disparities,
+                &out,
+            )?;
+            println!(
+                "wrote {} (rig file), {} (pod calibration) and the capture set {}",
+                p.rig.display(),
+                p.calibration.display(),
+                p.capture.display()
+            );
+            let truth = p
+                .truth
+                .map(|t| format!(" --truth {}", t.display()))
+                .unwrap_or_default();
+            println!(
+                "reconstruct it: conformd reconstruct {} --rig {} --calibration {} --out scan.ply{truth}",
+                p.capture.display(),
+                p.rig.display(),
+                p.calibration.display()
+            );
         }
         Cmd::Disparity {
             left,

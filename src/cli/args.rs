@@ -240,6 +240,36 @@ pub enum Cmd {
         /// instead of fusing a point cloud
         #[arg(long)]
         mesh: bool,
+        /// a ground-truth disparity of a pod's left image (as `disparity --truth`): prints
+        /// the scan's depth error, its bad-pixel share and coverage
+        #[arg(long)]
+        truth: Option<PathBuf>,
+        /// divide the truth's PNG values by this instead
+        #[arg(long)]
+        truth_scale: Option<f64>,
+        /// the pod whose left image the truth is of (default: the rig's first)
+        #[arg(long)]
+        truth_pod: Option<String>,
+    },
+    /// Turns a recorded, rectified pair and its calibration (Middlebury or KITTI
+    /// calib.txt) into a rig file, a pod calibration and a capture set, to replay it
+    /// through reconstruct and process.
+    ImportPair {
+        left: PathBuf,
+        right: PathBuf,
+        /// the pair's calibration: Middlebury 2014 `calib.txt` (cam0, cam1, baseline in
+        /// mm, ndisp) or KITTI's (P0, P1)
+        #[arg(long)]
+        calib: PathBuf,
+        /// its ground-truth disparity, copied into the capture set
+        #[arg(long)]
+        truth: Option<PathBuf>,
+        /// disparities to search (default: the calibration's ndisp, else 128)
+        #[arg(long)]
+        num_disparities: Option<i32>,
+        /// folder for rig.toml, calibration/ and captures/
+        #[arg(long)]
+        out: PathBuf,
     },
     /// Disparity of an already-rectified pair (PFM, or 16-bit PNG x16 for .png).
     Disparity {
@@ -251,9 +281,10 @@ pub enum Cmd {
         num_disparities: i32,
         #[arg(long, default_value_t = 5)]
         block_size: i32,
-        /// what the cameras see: `speckle` (a projected pattern; the default) or
-        /// `natural` (passive texture), as `[reconstruct.sgbm] profile` in a rig file
-        #[arg(long, default_value = "speckle")]
+        /// what the cameras see: `natural` (passive texture: a pair given on its own is
+        /// most often a photographed one; the default) or `speckle` (a projected
+        /// pattern, the station's default), as `[reconstruct.sgbm] profile` in a rig file
+        #[arg(long, default_value = "natural")]
         profile: String,
         /// a ground-truth disparity of the left image (.pfm; .png: 16-bit /256 as KITTI,
         /// 8-bit /4 as Middlebury's quarter-size sets): prints the bad-pixel share

@@ -115,8 +115,30 @@ fn write_simulated_set(
     images: Vec<SimImage>,
     extra: &[(&str, Vec<u8>)],
 ) -> Result<PathBuf, JobError> {
+    write_set(
+        out,
+        ("simulated", "sim"),
+        n,
+        station,
+        subject,
+        images,
+        extra,
+    )
+}
+
+/// Writes a capture set not taken by a rig (`trigger`: the manifest's trigger kind and
+/// the id's tag) under `out`; see [`write_simulated_set`].
+fn write_set(
+    out: &Path,
+    (trigger, tag): (&str, &str),
+    n: usize,
+    station: &str,
+    subject: &str,
+    images: Vec<SimImage>,
+    extra: &[(&str, Vec<u8>)],
+) -> Result<PathBuf, JobError> {
     use crate::rig::capture::{CameraRecord, Manifest, TriggerRecord, utc_stamp};
-    let id = format!("{}-sim{n:03}", utc_stamp(std::time::SystemTime::now()));
+    let id = format!("{}-{tag}{n:03}", utc_stamp(std::time::SystemTime::now()));
     let mut cameras = Vec::new();
     let mut files = Vec::new();
     for (pod, side, width, height, pixels) in images {
@@ -150,7 +172,7 @@ fn write_simulated_set(
         started_utc: now.clone(),
         finished_utc: now,
         trigger: TriggerRecord {
-            kind: "simulated".into(),
+            kind: trigger.into(),
             sequence: n as u32,
             box_time_us: None,
         },
@@ -454,6 +476,153 @@ pub fn score_disparity(
 ) -> Result<crate::stereo::truth::TruthScore, JobError> {
     let t = crate::stereo::truth::read_truth(truth, scale).map_err(JobError::Usage)?;
     crate::stereo::truth::score(d, &t, min_x)
+        .map_err(|e| JobError::Usage(format!("{}: {e}", truth.display())))
+}
+
+/// What `import-pair` wrote: the rig file, the calibration folder and the capture set.
+#[derive(Debug, Clone)]
+pub struct ImportedPair {
+    pub rig: PathBuf,
+    pub calibration: PathBuf,
+    pub capture: PathBuf,
+    /// the truth's copy inside the capture set, if one was given
+    pub truth: Option<PathBuf>,
+}
+
+/// The pod id of an imported pair.
+pub const IMPORTED_POD: &str = "pair";
+
+/// Turns a recorded, rectified pair and its calibration (Middlebury or KITTI
+/// `calib.txt`) into what a station would have: `out/rig.toml` (one pod, the
+/// natural-texture profile over `num_disparities`, or the file's `ndisp` rounded up to
+/// a multiple of 16, else 128; every point kept), `out/calibration/pair.yml` and a
+/// capture set under `out/captures/` holding the images, the calibration file and the
+/// truth, if given, as it was (`truth.<ext>`). Then `reconstruct` and `process` run on
+/// it, and `reconstruct --truth` scores the scan in depth.
+pub fn import_pair(
+    left: &Path,
+    right: &Path,
+    calib: &Path,
+    truth: Option<&Path>,
+    num_disparities: Option<i32>,
+    out: &Path,
+) -> Result<ImportedPair, JobError> {
+    let read = |p: &Path| -> Result<Vec<u8>, JobError> {
+        std::fs::read(p).map_err(|source| JobError::Io {
+            path: p.display().to_string(),
+            source,
+        })
+    };
+    let grey = |p: &Path| -> Result<image::GrayImage, JobError> {
+        Ok(image::open(p)
+            .map_err(|e| JobError::Usage(format!("{}: {e}", p.display())))?
+            .to_luma8())
+    };
+    let (l, r) = (grey(left)?, grey(right)?);
+    if l.dimensions() != r.dimensions() {
+        return Err(JobError::Usage(format!(
+            "{} is {:?} but {} is {:?}: a rectified pair has one size",
+            left.display(),
+            l.dimensions(),
+            right.display(),
+            r.dimensions()
+        )));
+    }
+    let calib_text = read(calib)?;
+    let cal = crate::stereo::recorded::parse_calibration(&String::from_utf8_lossy(&calib_text))
+        .map_err(|e| JobError::Usage(format!("{}: {e}", calib.display())))?;
+    let ndisp = num_disparities.unwrap_or_else(|| match cal.ndisp {
+        Some(n) => (n as i32 + 15) / 16 * 16,
+        None => 128,
+    });
+    let (w, h) = l.dimensions();
+    let mut extra = vec![("calib.txt".to_string(), calib_text)];
+    if let Some(t) = truth {
+        // read now, so that a truth of the wrong size is refused before anything is written
+        let parsed = crate::stereo::truth::read_truth(t, None).map_err(JobError::Usage)?;
+        if (parsed.width, parsed.height) != (w, h) {
+            return Err(JobError::Usage(format!(
+                "{}: the truth is {} x {}, the images {w} x {h}",
+                t.display(),
+                parsed.width,
+                parsed.height
+            )));
+        }
+        let ext = t.extension().and_then(|e| e.to_str()).unwrap_or("png");
+        extra.push((format!("truth.{}", ext.to_ascii_lowercase()), read(t)?));
+    }
+    let stem = left
+        .parent()
+        .and_then(|p| p.file_name())
+        .and_then(|n| n.to_str())
+        .filter(|n| crate::paths::check_plain_name("rig name", n).is_ok())
+        .unwrap_or("recorded");
+    let name = format!("replay-{stem}");
+    let rig = cal.rig_file(&name, IMPORTED_POD, (w, h), ndisp);
+    rig.check().map_err(JobError::Usage)?;
+    let rig_path = out.join("rig.toml");
+    let cal_dir = out.join("calibration");
+    std::fs::create_dir_all(&cal_dir).map_err(|source| JobError::Io {
+        path: cal_dir.display().to_string(),
+        source,
+    })?;
+    let text = format!(
+        "# {name}: the recorded pair {} / {} ({}), replayed by `conformd import-pair`\n{}",
+        left.display(),
+        right.display(),
+        calib.display(),
+        toml::to_string(&rig).expect("a rig file serialises")
+    );
+    write_atomic(&rig_path, text.as_bytes())?;
+    let pod = cal.pod(IMPORTED_POD, w, h);
+    write_atomic(
+        &cal_dir.join(format!("{IMPORTED_POD}.yml")),
+        pod.opencv_yaml_of(Some(&name)).as_bytes(),
+    )?;
+    let extra: Vec<(&str, Vec<u8>)> = extra.iter().map(|(n, b)| (n.as_str(), b.clone())).collect();
+    let images = vec![
+        (IMPORTED_POD.to_string(), "left", w, h, l.into_raw()),
+        (IMPORTED_POD.to_string(), "right", w, h, r.into_raw()),
+    ];
+    let capture = write_set(
+        &out.join("captures"),
+        ("recorded", "replay"),
+        0,
+        &name,
+        &format!("{}", left.display()),
+        images,
+        &extra,
+    )?;
+    let truth = extra
+        .iter()
+        .find(|(n, _)| n.starts_with("truth."))
+        .map(|(n, _)| capture.join(n));
+    Ok(ImportedPair {
+        rig: rig_path,
+        calibration: cal_dir,
+        capture,
+        truth,
+    })
+}
+
+/// Scores a reconstructed scan against a truth disparity of one pod's left image
+/// (`pod`, else the rig's first), as depth ([`crate::stereo::truth::score_depth`]).
+pub fn score_scan(
+    scan: &crate::mesh::Mesh,
+    station: &Reconstruction,
+    pod: Option<&str>,
+    truth: &Path,
+    scale: Option<f64>,
+) -> Result<crate::stereo::truth::DepthScore, JobError> {
+    let p =
+        match pod {
+            Some(id) => station.pods.iter().find(|p| p.id == id).ok_or_else(|| {
+                JobError::Usage(format!("--truth-pod {id}: the rig has no such pod"))
+            })?,
+            None => &station.pods[0],
+        };
+    let t = crate::stereo::truth::read_truth(truth, scale).map_err(JobError::Usage)?;
+    crate::stereo::truth::score_depth(&scan.vertices, p, &t)
         .map_err(|e| JobError::Usage(format!("{}: {e}", truth.display())))
 }
 

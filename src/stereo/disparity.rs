@@ -39,9 +39,12 @@ pub struct SgbmOptions {
     /// left-right consistency, pixels (negative: off)
     pub disp12_max_diff: i32,
     pub pre_filter_cap: i32,
-    /// pixels whose 5x5 neighbourhood varies less than this (grey levels, standard
-    /// deviation) carry no texture to match: they are left out, not guessed
+    /// pixels whose neighbourhood (`contrast_window` a side) varies less than this (grey
+    /// levels, standard deviation) carry no texture to match: they are left out, not
+    /// guessed; 0 keeps them
     pub min_contrast: f64,
+    /// side of that neighbourhood, pixels (odd)
+    pub contrast_window: i32,
     /// valid pixels this close (pixels) to an unmatched pixel or to a disparity jump of
     /// over `max_jump` are dropped: block matching smears the nearer surface across such
     /// edges ("edge fattening"); 0 keeps them
@@ -52,6 +55,14 @@ pub struct SgbmOptions {
     /// the window (pixels, odd) they compare; 0 steps keeps SGBM's own interpolation
     pub subpixel_steps: u32,
     pub subpixel_window: i32,
+    /// a full left-right check: the mirrored pair is matched too, and a left pixel is kept
+    /// only if the right pixel it lands on agrees within this many pixels (or has no
+    /// match of its own); 0: off (SGBM's `disp12_max_diff` still applies). Costs a second
+    /// SGBM run; catches the occluded pixels SGBM's own check passes (edge fattening).
+    pub cross_check: f64,
+    /// pixels this close (pixels, to the right) to one the full check dropped are dropped
+    /// too: the first columns of a surface after an occlusion carry its smeared edge
+    pub occlusion_margin: i32,
 }
 
 impl Default for SgbmOptions {
@@ -74,10 +85,13 @@ struct SgbmKeys {
     disp12_max_diff: Option<i32>,
     pre_filter_cap: Option<i32>,
     min_contrast: Option<f64>,
+    contrast_window: Option<i32>,
     edge_margin: Option<i32>,
     max_jump: Option<f64>,
     subpixel_steps: Option<u32>,
     subpixel_window: Option<i32>,
+    cross_check: Option<f64>,
+    occlusion_margin: Option<i32>,
 }
 
 impl From<SgbmKeys> for SgbmOptions {
@@ -96,10 +110,13 @@ impl From<SgbmKeys> for SgbmOptions {
             disp12_max_diff,
             pre_filter_cap,
             min_contrast,
+            contrast_window,
             edge_margin,
             max_jump,
             subpixel_steps,
-            subpixel_window
+            subpixel_window,
+            cross_check,
+            occlusion_margin
         );
         o
     }
@@ -111,11 +128,20 @@ impl SgbmOptions {
         let speckle = SgbmOptions::speckle();
         match profile {
             Profile::Speckle => speckle,
-            // chosen on the recorded pairs of tests/data/stereo (benches/stereo_real.rs)
+            // chosen on the recorded pairs of tests/data/stereo (benches/stereo_real.rs):
+            // SGBM's smoothness carries matches across plain surfaces from their textured
+            // edges, so only what is flat over a 21x21 window is left out; the sub-pixel
+            // step moves more pixels past 1 px than it brings closer; occlusions are
+            // found by the full left-right check instead of the edge margin, which cost
+            // KITTI's thin poles and car edges their coverage
             Profile::Natural => SgbmOptions {
                 profile,
-                min_contrast: 0.0,
+                min_contrast: 1.0,
+                contrast_window: 21,
                 subpixel_steps: 0,
+                edge_margin: 0,
+                cross_check: 1.0,
+                occlusion_margin: 1,
                 ..speckle
             },
         }
@@ -135,10 +161,13 @@ impl SgbmOptions {
             disp12_max_diff: 1,
             pre_filter_cap: 31,
             min_contrast: 6.0,
+            contrast_window: 5,
             edge_margin: 2,
             max_jump: 2.0,
             subpixel_steps: 1,
             subpixel_window: 7,
+            cross_check: 0.0,
+            occlusion_margin: 0,
         }
     }
 }
@@ -158,6 +187,24 @@ impl SgbmOptions {
             return Err(format!(
                 "block_size must be odd, 1 to 21, got {}",
                 self.block_size
+            ));
+        }
+        if !(self.cross_check >= 0.0 && self.cross_check.is_finite()) {
+            return Err(format!(
+                "cross_check must be 0 (off) or a tolerance in pixels, got {}",
+                self.cross_check
+            ));
+        }
+        if self.edge_margin < 0 || self.occlusion_margin < 0 {
+            return Err(format!(
+                "edge_margin and occlusion_margin are pixels, 0 or more, got {} and {}",
+                self.edge_margin, self.occlusion_margin
+            ));
+        }
+        if self.contrast_window < 3 || self.contrast_window % 2 == 0 || self.contrast_window > 63 {
+            return Err(format!(
+                "contrast_window must be odd, 3 to 63, got {}",
+                self.contrast_window
             ));
         }
         if self.subpixel_window < 3 || self.subpixel_window % 2 == 0 || self.subpixel_window > 31 {
@@ -297,8 +344,220 @@ pub fn to_pixels(disp: &Mat, min_disparity: i32) -> opencv::Result<Disparity> {
     })
 }
 
-/// Disparity of a rectified pair given as grey pixels, refined to sub-pixel precision
-/// when `o.subpixel_steps` > 0.
+/// A rectified pair matched: SGBM's own disparity and what conformd's filters keep of it.
+pub struct Matched {
+    /// SGBM's disparity in pixels (CV_32F), unmatched `min_disparity - 1`
+    pub sgbm: Mat,
+    /// the kept disparity, refined where `subpixel_steps` > 0, row-major, invalid = inf
+    pub values: Vec<f32>,
+    /// pixels SGBM matched, before conformd's filters
+    pub sgbm_matched: usize,
+    /// seconds spent in conformd's own loops (the rest is OpenCV's)
+    pub seconds_own: f64,
+}
+
+/// Matches a rectified pair of 8-bit grey images and applies every filter of `o`: the
+/// one path of `disparity` and `reconstruct`, so both report the same pixels. In order:
+/// SGBM; the sub-pixel step (a pixel it would move by over a pixel is dropped); the
+/// texture mask (`min_contrast`); the edge margin (a jump of over `max_jump`, or an
+/// unmatched pixel, within `edge_margin`); the full left-right check (`cross_check`) and
+/// the `occlusion_margin` beside what it dropped. `grids`: [`pixel_grids`] of the pair's
+/// size, if the caller keeps them.
+pub fn match_pair(
+    left: &Mat,
+    right: &Mat,
+    grids: Option<&(Mat, Mat)>,
+    o: &SgbmOptions,
+) -> opencv::Result<Matched> {
+    let (w, h) = (left.cols() as usize, left.rows() as usize);
+    let d16 = disparity_mats(left, right, o)?;
+    let mut sgbm = Mat::default();
+    d16.convert_to(&mut sgbm, CV_32F, 1.0 / 16.0, 0.0)?;
+    let unmatched = (o.min_disparity - 1) as f32;
+    let raw = sgbm.data_typed::<f32>()?;
+    let refined_own;
+    let refined = if o.subpixel_steps > 0 {
+        let own_grids;
+        let g = match grids {
+            Some(g) => g,
+            None => {
+                own_grids = pixel_grids(w as i32, h as i32)?;
+                &own_grids
+            }
+        };
+        refined_own = refine_subpixel(left, right, &sgbm, g, o)?;
+        Some(refined_own.data_typed::<f32>()?)
+    } else {
+        None
+    };
+    let moments = if o.min_contrast > 0.0 {
+        Some(local_moments(left, o.contrast_window)?)
+    } else {
+        None
+    };
+    let spread = if o.edge_margin > 0 {
+        Some(disparity_spread(&sgbm, o)?)
+    } else {
+        None
+    };
+    let mirrored = if o.cross_check > 0.0 {
+        let flip = |m: &Mat| -> opencv::Result<Mat> {
+            let mut out = Mat::default();
+            core::flip(m, &mut out, 1)?;
+            Ok(out)
+        };
+        // the right image as reference: the mirrored right image is the left of a pair
+        let d = disparity_mats(&flip(right)?, &flip(left)?, o)?;
+        let mut f = Mat::default();
+        d.convert_to(&mut f, CV_32F, 1.0 / 16.0, 0.0)?;
+        Some(f)
+    } else {
+        None
+    };
+    let moments = match &moments {
+        Some((m, m2)) => Some((m.data_typed::<f32>()?, m2.data_typed::<f32>()?)),
+        None => None,
+    };
+    let spread = match &spread {
+        Some(s) => Some(s.data_typed::<f32>()?),
+        None => None,
+    };
+    let own = std::time::Instant::now();
+    let mut sgbm_matched = 0;
+    let min_var = (o.min_contrast * o.min_contrast) as f32;
+    let mut values: Vec<f32> = raw
+        .iter()
+        .enumerate()
+        .map(|(i, &d)| {
+            if d <= unmatched {
+                return f32::INFINITY;
+            }
+            sgbm_matched += 1;
+            let v = match refined {
+                // a pixel that moved over a pixel in all was not refined but lost
+                Some(r) if (r[i] - d).abs() > 1.0 => return f32::INFINITY,
+                Some(r) => r[i],
+                None => d,
+            };
+            if let Some((m, m2)) = moments
+                && m2[i] - m[i] * m[i] < min_var
+            {
+                // no match where the left image has no texture to match
+                return f32::INFINITY;
+            }
+            if spread.is_some_and(|s| s[i] > o.max_jump as f32) {
+                return f32::INFINITY;
+            }
+            v
+        })
+        .collect();
+    if let Some(m) = &mirrored {
+        cross_check(&mut values, raw, m.data_typed::<f32>()?, w, unmatched, o);
+    }
+    Ok(Matched {
+        sgbm,
+        values,
+        sgbm_matched,
+        seconds_own: own.elapsed().as_secs_f64(),
+    })
+}
+
+/// The full left-right check on `values` (row-major, `w` wide) against the mirrored
+/// pair's disparity `right` (its column `w - 1 - x` is the right image's column x), then
+/// the occlusion margin beside the pixels it dropped. `raw`: SGBM's left disparity.
+fn cross_check(
+    values: &mut [f32],
+    raw: &[f32],
+    right: &[f32],
+    w: usize,
+    unmatched: f32,
+    o: &SgbmOptions,
+) {
+    let tol = o.cross_check as f32;
+    let mut dropped = vec![false; values.len()];
+    for (i, v) in values.iter_mut().enumerate() {
+        if !v.is_finite() {
+            continue;
+        }
+        let (row, x) = (i - i % w, (i % w) as f32);
+        let at = x - raw[i];
+        if at < 0.0 {
+            // its match would lie left of the right image
+            (*v, dropped[i]) = (f32::INFINITY, true);
+            continue;
+        }
+        // the two right columns about the sub-pixel match
+        let (mut seen, mut agrees) = (false, false);
+        for c in [at.floor() as usize, at.ceil() as usize] {
+            if c >= w {
+                continue;
+            }
+            let q = right[row + w - 1 - c];
+            if q > unmatched {
+                seen = true;
+                agrees |= (q - raw[i]).abs() <= tol;
+            }
+        }
+        // a right pixel without a match of its own says nothing against this one
+        if seen && !agrees {
+            (*v, dropped[i]) = (f32::INFINITY, true);
+        }
+    }
+    let m = o.occlusion_margin as usize;
+    if m == 0 {
+        return;
+    }
+    for i in 0..values.len() {
+        let x = i % w;
+        if values[i].is_finite() && (1..=m.min(x)).any(|k| dropped[i - k]) {
+            values[i] = f32::INFINITY;
+        }
+    }
+}
+
+/// The spread (largest minus smallest) of SGBM's disparity over each pixel's
+/// `edge_margin` window, unmatched pixels counting as 0: over `max_jump` marks a pixel
+/// beside a depth jump or a hole, where block matching smears the nearer surface.
+fn disparity_spread(sgbm: &Mat, o: &SgbmOptions) -> opencv::Result<Mat> {
+    let side = 2 * o.edge_margin + 1;
+    let anchor = Point::new(-1, -1);
+    let kernel =
+        imgproc::get_structuring_element(imgproc::MORPH_RECT, Size::new(side, side), anchor)?;
+    let mut d0 = Mat::default();
+    imgproc::threshold(
+        sgbm,
+        &mut d0,
+        o.min_disparity as f64,
+        0.0,
+        imgproc::THRESH_TOZERO,
+    )?;
+    let (mut hi, mut lo) = (Mat::default(), Mat::default());
+    let border = imgproc::morphology_default_border_value()?;
+    imgproc::dilate(
+        &d0,
+        &mut hi,
+        &kernel,
+        anchor,
+        1,
+        core::BORDER_CONSTANT,
+        border,
+    )?;
+    imgproc::erode(
+        &d0,
+        &mut lo,
+        &kernel,
+        anchor,
+        1,
+        core::BORDER_REPLICATE,
+        border,
+    )?;
+    let mut spread = Mat::default();
+    core::subtract(&hi, &lo, &mut spread, &core::no_array(), -1)?;
+    Ok(spread)
+}
+
+/// Disparity of a rectified pair given as grey pixels, with every filter of `o`
+/// ([`match_pair`]).
 pub fn disparity(
     left: &[u8],
     right: &[u8],
@@ -312,51 +571,24 @@ pub fn disparity(
             gray_mat(left, width, height)?,
             gray_mat(right, width, height)?,
         );
-        let d = disparity_mats(&l, &r, o)?;
-        let mut px = to_pixels(&d, o.min_disparity)?;
-        if o.subpixel_steps > 0 {
-            let mut f = Mat::default();
-            d.convert_to(&mut f, CV_32F, 1.0 / 16.0, 0.0)?;
-            let grids = pixel_grids(width as i32, height as i32)?;
-            let refined = refine_subpixel(&l, &r, &f, &grids, o)?;
-            for (v, r) in px.values.iter_mut().zip(refined.data_typed::<f32>()?) {
-                if v.is_finite() {
-                    // a pixel that moved over a pixel in all was not refined but lost
-                    *v = if (r - *v).abs() <= 1.0 {
-                        *r
-                    } else {
-                        f32::INFINITY
-                    };
-                }
-            }
-        }
-        // no match where the left image has no texture to match
-        let (m, m2) = local_moments(&l)?;
-        let min_var = (o.min_contrast * o.min_contrast) as f32;
-        for ((v, a), b) in px
-            .values
-            .iter_mut()
-            .zip(m.data_typed::<f32>()?)
-            .zip(m2.data_typed::<f32>()?)
-        {
-            if b - a * a < min_var {
-                *v = f32::INFINITY;
-            }
-        }
-        Ok(px)
+        Ok(Disparity {
+            width,
+            height,
+            values: match_pair(&l, &r, None, o)?.values,
+        })
     };
     run().map_err(|e| format!("OpenCV: {e}"))
 }
 
-/// Local mean and mean of squares of a grey image over 5x5 windows (CV_32F), whose
-/// difference of squares is the local variance the texture mask reads.
-pub fn local_moments(img: &Mat) -> opencv::Result<(Mat, Mat)> {
+/// Local mean and mean of squares of a grey image over `side` x `side` windows (CV_32F),
+/// whose difference of squares is the local variance the texture mask reads.
+pub fn local_moments(img: &Mat, side: i32) -> opencv::Result<(Mat, Mat)> {
     let mut f = Mat::default();
     img.convert_to(&mut f, CV_32F, 1.0, 0.0)?;
     let mut sq = Mat::default();
     core::multiply(&f, &f, &mut sq, 1.0, -1)?;
     let (mut mean, mut mean_sq) = (Mat::default(), Mat::default());
-    let k = core::Size::new(5, 5);
+    let k = core::Size::new(side, side);
     let anchor = core::Point::new(-1, -1);
     imgproc::blur(&f, &mut mean, k, anchor, core::BORDER_REFLECT)?;
     imgproc::blur(&sq, &mut mean_sq, k, anchor, core::BORDER_REFLECT)?;

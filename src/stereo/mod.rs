@@ -5,5 +5,6 @@ pub mod calib;
 pub mod calibrate;
 pub mod disparity;
 pub mod reconstruct;
+pub mod recorded;
 pub mod rig;
 pub mod truth;

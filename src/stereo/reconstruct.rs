@@ -5,7 +5,7 @@
 //! depth discontinuities into one mesh with holes.
 
 use super::calib::Pod;
-use super::disparity::{SgbmOptions, disparity_mats, gray_mat, pixel_grids, refine_subpixel};
+use super::disparity::{SgbmOptions, gray_mat, match_pair, pixel_grids};
 use crate::mesh::{Mesh, V3, keep_triangles, topology};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use opencv::calib3d;
@@ -23,8 +23,8 @@ pub struct ReconstructOptions {
     pub sgbm: SgbmOptions,
     /// voxel edge for downsampling (m); 0 keeps every point
     pub voxel: f64,
-    /// outlier removal: neighbours considered, and how many standard deviations above
-    /// the mean neighbour distance a point may be
+    /// outlier removal: neighbours considered (0: no removal), and how many standard
+    /// deviations above the mean neighbour distance a point may be
     pub outlier_k: usize,
     pub outlier_sigma: f64,
     /// [min, max] corners of the rig's working volume (m)
@@ -432,10 +432,9 @@ impl DepthGrid {
     }
 }
 
-/// Rectifies one pod's image pair with its cached maps, matches (SGBM over `o`'s
-/// disparities, then the sub-pixel refinement), and reprojects every pixel that has a
-/// match, enough local texture (`o.min_contrast`) and no unmatched pixel or disparity
-/// jump within `o.edge_margin` into the rig frame.
+/// Rectifies one pod's image pair with its cached maps, matches it with every filter of
+/// `o` ([`match_pair`], the same path as `disparity`), and reprojects every kept pixel
+/// into the rig frame.
 ///
 /// In: 8-bit grey left and right pixels of the calibration's size (row-major).
 /// Out: the pod's depth grid; `report` gets the pod's counts and seconds per stage.
@@ -455,91 +454,25 @@ pub fn pod_grid(
     let (lr, rr) = (rectifier.remap(false, &lm)?, rectifier.remap(true, &rm)?);
     report.seconds_rectify = t0.elapsed().as_secs_f64();
     let t1 = Instant::now();
-    let disp = disparity_mats(&lr, &rr, o)?;
+    let matched = match_pair(&lr, &rr, Some(&rectifier.grids), o)?;
     report.seconds_disparity = t1.elapsed().as_secs_f64();
     let t2 = Instant::now();
-    // pixels; SGBM marks the unmatched min_disparity - 1
-    let mut dispf = Mat::default();
-    disp.convert_to(&mut dispf, core::CV_32F, 1.0 / 16.0, 0.0)?;
-    let refined_own;
-    let refined = if o.subpixel_steps > 0 {
-        refined_own = refine_subpixel(&lr, &rr, &dispf, &rectifier.grids, o)?;
-        &refined_own
-    } else {
-        &dispf
-    };
+    let kept = Mat::new_rows_cols_with_data(h as i32, w as i32, &matched.values)?;
     let mut xyz = Mat::default();
-    calib3d::reproject_image_to_3d(refined, &mut xyz, &rectifier.rect.q, true, core::CV_32F)?;
+    calib3d::reproject_image_to_3d(&kept, &mut xyz, &rectifier.rect.q, false, core::CV_32F)?;
     let pts = xyz.data_typed::<core::Vec3f>()?;
-    // texture mask: local standard deviation of the rectified left image
-    let (mean, mean_sq) = crate::stereo::disparity::local_moments(&lr)?;
-    let anchor = core::Point::new(-1, -1);
-    // edges: the spread of disparity (unmatched = 0) over the margin's window
-    let spread = if o.edge_margin > 0 {
-        let side = 2 * o.edge_margin + 1;
-        let kernel =
-            imgproc::get_structuring_element(imgproc::MORPH_RECT, Size::new(side, side), anchor)?;
-        let mut d0 = Mat::default();
-        imgproc::threshold(
-            &dispf,
-            &mut d0,
-            o.min_disparity as f64,
-            0.0,
-            imgproc::THRESH_TOZERO,
-        )?;
-        let (mut hi, mut lo) = (Mat::default(), Mat::default());
-        let border = imgproc::morphology_default_border_value()?;
-        imgproc::dilate(
-            &d0,
-            &mut hi,
-            &kernel,
-            anchor,
-            1,
-            core::BORDER_CONSTANT,
-            border,
-        )?;
-        imgproc::erode(
-            &d0,
-            &mut lo,
-            &kernel,
-            anchor,
-            1,
-            core::BORDER_REPLICATE,
-            border,
-        )?;
-        let mut spread = Mat::default();
-        core::subtract(&hi, &lo, &mut spread, &core::no_array(), -1)?;
-        Some(spread)
-    } else {
-        None
-    };
     // from here on the work is conformd's own
     let own_start = Instant::now();
-    let spread = match &spread {
-        Some(m) => m.data_typed::<f32>()?,
-        None => &[],
-    };
-    let max_jump = o.max_jump as f32;
-    let (before, after) = (dispf.data_typed::<f32>()?, refined.data_typed::<f32>()?);
-    let (m, m2) = (mean.data_typed::<f32>()?, mean_sq.data_typed::<f32>()?);
-    let min_var = (o.min_contrast * o.min_contrast) as f32;
     let (rot, shift) = (rectifier.rot, rectifier.shift);
     let invalid = [f32::NAN; 3];
-    let (mut count, mut matched) = (0, 0);
+    let mut count = 0;
+    // a match at the first disparity searched may be one whose truth lies below it
     let first = o.min_disparity as f32;
     let points: Vec<[f32; 3]> = pts
         .iter()
-        .enumerate()
-        .map(|(i, p)| {
-            let d = before[i];
-            if d > first - 1.0 {
-                matched += 1;
-            }
-            if !(d > first)
-                || m2[i] - m[i] * m[i] < min_var
-                || spread.get(i).is_some_and(|s| *s > max_jump)
-                || (after[i] - before[i]).abs() > 1.0
-            {
+        .zip(&matched.values)
+        .map(|(p, &d)| {
+            if !(d > first) {
                 return invalid;
             }
             let c = V3::new(p[0] as f64, p[1] as f64, p[2] as f64);
@@ -552,8 +485,8 @@ pub fn pod_grid(
         })
         .collect();
     report.points = count;
-    report.valid_disparity_share = matched as f64 / pts.len().max(1) as f64;
-    report.seconds_own = own_start.elapsed().as_secs_f64() + own_copies;
+    report.valid_disparity_share = matched.sgbm_matched as f64 / pts.len().max(1) as f64;
+    report.seconds_own = own_start.elapsed().as_secs_f64() + own_copies + matched.seconds_own;
     report.seconds_reproject = t2.elapsed().as_secs_f64();
     Ok(DepthGrid {
         pod: pod.id.clone(),
@@ -719,7 +652,7 @@ pub fn fuse(points: Vec<(V3, V3)>, o: &ReconstructOptions, report: &mut Reconstr
             .collect();
     }
     report.after_voxel = pts.len();
-    if pts.len() > o.outlier_k + 1 {
+    if o.outlier_k > 0 && pts.len() > o.outlier_k + 1 {
         let arr: Vec<[f64; 3]> = pts.iter().map(|(p, _)| [p.x, p.y, p.z]).collect();
         let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&arr);
         let k = NonZero::new(o.outlier_k + 1).unwrap();

@@ -1,8 +1,11 @@
 //! Ground-truth disparity of recorded stereo pairs (Middlebury PFM and quarter-size PNG,
 //! KITTI 16-bit PNG) and the figures a disparity map is judged by against it: the share
-//! of bad pixels (more than 1 px off) among the valid ones, and the coverage.
+//! of bad pixels (more than 1 px off) among the valid ones, and the coverage; and the
+//! same truth as depth, to judge a reconstructed scan by ([`score_depth`]).
 
+use super::calib::Pod;
 use super::disparity::Disparity;
+use crate::mesh::V3;
 use std::path::Path;
 
 /// A ground-truth disparity map; NaN where the truth is unknown.
@@ -40,6 +43,103 @@ impl std::fmt::Display for TruthScore {
             self.known
         )
     }
+}
+
+/// How a reconstructed scan compares with the truth seen as depth from the pod's left
+/// camera: each known pixel takes the nearest scan point that projects into it.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct DepthScore {
+    /// pixels with a known truth
+    pub known: usize,
+    /// of those, the share some scan point projects into
+    pub coverage: f64,
+    /// depth error of the covered pixels, metres: mean, 95th percentile
+    pub mean_depth: f64,
+    pub p95_depth: f64,
+    /// the same, relative to the true depth
+    pub mean_relative: f64,
+    /// the scan's depth taken back to disparity: the share of covered pixels more than
+    /// 1 px (and 2 px) off, as `disparity --truth` counts them
+    pub bad1: f64,
+    pub bad2: f64,
+}
+
+impl std::fmt::Display for DepthScore {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "against the truth: depth error mean {:.4} m ({:.2}% of the depth), 95th percentile {:.4} m; {:.2}% of covered pixels more than 1 px of disparity off ({:.2}% more than 2 px); coverage {:.1}% of {} pixels with a known truth",
+            self.mean_depth,
+            self.mean_relative * 100.0,
+            self.p95_depth,
+            self.bad1 * 100.0,
+            self.bad2 * 100.0,
+            self.coverage * 100.0,
+            self.known
+        )
+    }
+}
+
+/// Scores scan points (rig frame) against a truth disparity of `pod`'s left image. The
+/// truth's depth is `f B / (d + doffs)`, `doffs` the right camera's principal point
+/// less the left's (Middlebury's convention; 0 for KITTI); lens distortion is applied
+/// when projecting, so the truth is taken to be of the image as recorded.
+pub fn score_depth(points: &[V3], pod: &Pod, truth: &Truth) -> Result<DepthScore, String> {
+    let k = &pod.left;
+    if (k.width, k.height) != (truth.width, truth.height) {
+        return Err(format!(
+            "the truth is {} x {} but pod {}'s left camera gives {} x {}",
+            truth.width, truth.height, pod.id, k.width, k.height
+        ));
+    }
+    let (fb, doffs) = (k.fx * pod.baseline(), pod.right.cx - k.cx);
+    let w = k.width as usize;
+    // the nearest point per pixel: the surface that pixel sees
+    let mut nearest = vec![f64::INFINITY; truth.values.len()];
+    for p in points {
+        let c = pod.left_pose.to_camera(p);
+        let Some(px) = k.project(&c) else { continue };
+        let (x, y) = (px.x.round(), px.y.round());
+        if x >= 0.0 && y >= 0.0 && (x as u32) < k.width && (y as u32) < k.height {
+            let i = y as usize * w + x as usize;
+            nearest[i] = nearest[i].min(c.z);
+        }
+    }
+    let (mut known, mut errors, mut rel, mut bad1, mut bad2) = (0, Vec::new(), 0.0, 0, 0);
+    for (&t, &z) in truth.values.iter().zip(&nearest) {
+        if t.is_nan() || !(t as f64 + doffs > 0.0) {
+            continue;
+        }
+        known += 1;
+        if z.is_finite() {
+            let zt = fb / (t as f64 + doffs);
+            errors.push((z - zt).abs());
+            rel += (z - zt).abs() / zt;
+            let e = (fb / z - doffs - t as f64).abs();
+            bad1 += (e > 1.0) as usize;
+            bad2 += (e > 2.0) as usize;
+        }
+    }
+    let n = errors.len();
+    let share = |a: usize, of: usize| if of > 0 { a as f64 / of as f64 } else { 0.0 };
+    errors.sort_by(f64::total_cmp);
+    Ok(DepthScore {
+        known,
+        coverage: share(n, known),
+        mean_depth: if n > 0 {
+            errors.iter().sum::<f64>() / n as f64
+        } else {
+            0.0
+        },
+        p95_depth: if n > 0 {
+            errors[(n * 95 / 100).min(n - 1)]
+        } else {
+            0.0
+        },
+        mean_relative: if n > 0 { rel / n as f64 } else { 0.0 },
+        bad1: share(bad1, n),
+        bad2: share(bad2, n),
+    })
 }
 
 /// Reads a ground truth: `.pfm` (Middlebury 2014: float, rows bottom-up, inf unknown), or

@@ -1,0 +1,196 @@
+//! Calibrations of recorded benchmark pairs (Middlebury `calib.txt`, KITTI `calib.txt`)
+//! read into a pod and a rig file, so a recorded, rectified pair can be replayed as a
+//! capture set through `reconstruct` and `process` (`conformd import-pair`).
+
+use super::calib::{Intrinsics, Pod, Pose};
+use super::rig::{PodSpec, RigFile};
+use crate::mesh::V3;
+use nalgebra::Matrix3;
+
+/// A rectified pair's calibration: one focal length and row of principal points, the
+/// right camera's principal point (Middlebury's `doffs` is its difference), the baseline
+/// and, if the file says, the disparities to search.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RecordedCalibration {
+    pub focal: f64,
+    pub cx_left: f64,
+    pub cx_right: f64,
+    pub cy: f64,
+    /// metres
+    pub baseline: f64,
+    pub ndisp: Option<u32>,
+}
+
+/// Reads a Middlebury 2014 `calib.txt` (`cam0=[f 0 cx; 0 f cy; 0 0 1]`, `cam1=`,
+/// `baseline=` in mm, `ndisp=`) or a KITTI one (`P0:` and `P1:`, 3x4 projections of the
+/// rectified grey cameras, `P1`'s fourth entry `-f B` in metres).
+pub fn parse_calibration(text: &str) -> Result<RecordedCalibration, String> {
+    let value = |key: &str, sep: char| -> Option<&str> {
+        text.lines().find_map(|l| {
+            let (k, v) = l.split_once(sep)?;
+            (k.trim() == key).then_some(v.trim())
+        })
+    };
+    let numbers = |v: &str, what: &str| -> Result<Vec<f64>, String> {
+        v.split(|c: char| c.is_whitespace() || matches!(c, '[' | ']' | ';'))
+            .filter(|s| !s.is_empty())
+            .map(|s| {
+                s.parse::<f64>()
+                    .ok()
+                    .filter(|x| x.is_finite())
+                    .ok_or_else(|| format!("{what}: '{s}' is not a number"))
+            })
+            .collect()
+    };
+    let c = if let (Some(c0), Some(c1)) = (value("cam0", '='), value("cam1", '=')) {
+        let (k0, k1) = (numbers(c0, "cam0")?, numbers(c1, "cam1")?);
+        if k0.len() != 9 || k1.len() != 9 {
+            return Err("cam0 and cam1 must be 3x3 matrices [f 0 cx; 0 f cy; 0 0 1]".into());
+        }
+        let b = value("baseline", '=').ok_or("no baseline= (mm)")?;
+        let b = numbers(b, "baseline")?;
+        let ndisp = match value("ndisp", '=') {
+            Some(v) => Some(
+                v.parse::<u32>()
+                    .map_err(|_| format!("ndisp: '{v}' is not a count"))?,
+            ),
+            None => None,
+        };
+        RecordedCalibration {
+            focal: k0[0],
+            cx_left: k0[2],
+            cx_right: k1[2],
+            cy: k0[5],
+            baseline: b.first().copied().unwrap_or(f64::NAN) / 1000.0,
+            ndisp,
+        }
+    } else if let (Some(p0), Some(p1)) = (value("P0", ':'), value("P1", ':')) {
+        let (p0, p1) = (numbers(p0, "P0")?, numbers(p1, "P1")?);
+        if p0.len() != 12 || p1.len() != 12 {
+            return Err("P0 and P1 must be 3x4 projection matrices (12 numbers)".into());
+        }
+        RecordedCalibration {
+            focal: p0[0],
+            cx_left: p0[2],
+            cx_right: p1[2],
+            cy: p0[6],
+            baseline: -p1[3] / p1[0],
+            ndisp: None,
+        }
+    } else {
+        return Err(
+            "neither a Middlebury calibration (cam0=, cam1=, baseline=) nor a KITTI one (P0:, P1:)"
+                .into(),
+        );
+    };
+    if !(c.focal > 0.0 && c.baseline > 0.0 && c.baseline.is_finite()) {
+        return Err(format!(
+            "focal length {} px and baseline {} m must be positive",
+            c.focal, c.baseline
+        ));
+    }
+    Ok(c)
+}
+
+impl RecordedCalibration {
+    /// The pair as a pod `id` whose left camera is the rig frame (x right, y down, z
+    /// forward), for images of `width` x `height`.
+    pub fn pod(&self, id: &str, width: u32, height: u32) -> Pod {
+        let k = |cx| Intrinsics {
+            width,
+            height,
+            fx: self.focal,
+            fy: self.focal,
+            cx,
+            cy: self.cy,
+            dist: [0.0; 5],
+        };
+        Pod {
+            id: id.into(),
+            left: k(self.cx_left),
+            right: k(self.cx_right),
+            left_pose: Pose {
+                r: Matrix3::identity(),
+                t: V3::zeros(),
+            },
+            r: Matrix3::identity(),
+            t: V3::new(-self.baseline, 0.0, 0.0),
+        }
+    }
+
+    /// A rig file of the one pod, matched with the natural-texture profile over
+    /// `num_disparities` (a multiple of 16), every point kept (no voxel grid, no outlier
+    /// removal, no working volume): a replay is scored pixel by pixel.
+    pub fn rig_file(
+        &self,
+        name: &str,
+        pod: &str,
+        size: (u32, u32),
+        num_disparities: i32,
+    ) -> RigFile {
+        use super::disparity::{Profile, SgbmOptions};
+        use super::reconstruct::ReconstructOptions;
+        RigFile {
+            name: name.into(),
+            pods: vec![PodSpec {
+                id: pod.into(),
+                image: [size.0, size.1],
+                focal_px: self.focal,
+                principal: Some([self.cx_left, self.cy]),
+                distortion: [0.0; 5],
+                baseline: self.baseline,
+                position: [0.0; 3],
+                look_at: [0.0, 0.0, 1.0],
+                up: [0.0, -1.0, 0.0],
+                rotation: Some([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]),
+                projector: false,
+                speckle_px: 3.0,
+            }],
+            working_volume: None,
+            reconstruct: Some(ReconstructOptions {
+                sgbm: SgbmOptions {
+                    num_disparities,
+                    ..SgbmOptions::for_profile(Profile::Natural)
+                },
+                voxel: 0.0,
+                outlier_k: 0,
+                auto_disparity_range: false,
+                ..Default::default()
+            }),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn middlebury_and_kitti_calibrations_read() {
+        let m = parse_calibration(
+            "cam0=[3997.684 0 1176.728; 0 3997.684 1011.728; 0 0 1]\ncam1=[3997.684 0 1307.839; 0 3997.684 1011.728; 0 0 1]\ndoffs=131.111\nbaseline=193.001\nwidth=2964\nheight=1988\nndisp=280\n",
+        )
+        .unwrap();
+        assert_eq!(m.ndisp, Some(280));
+        assert!((m.baseline - 0.193001).abs() < 1e-9);
+        assert!((m.cx_right - m.cx_left - 131.111).abs() < 1e-9);
+        let k = parse_calibration(
+            "P0: 7.188560e+02 0 6.071928e+02 0 0 7.188560e+02 1.852157e+02 0 0 0 1 0\nP1: 7.188560e+02 0 6.071928e+02 -3.861448e+02 0 7.188560e+02 1.852157e+02 0 0 0 1 0\n",
+        )
+        .unwrap();
+        assert!((k.baseline - 0.537165).abs() < 1e-5 && k.cx_left == k.cx_right);
+        let pod = k.pod("p", 1226, 370);
+        assert!((pod.baseline() - k.baseline).abs() < 1e-12);
+        assert!(
+            parse_calibration("cam0=[1 0 2; 0 1 2; 0 0 1]\ncam1=[1 0 x; 0 1 2; 0 0 1]\nbaseline=1")
+                .unwrap_err()
+                .contains("'x'")
+        );
+        assert!(parse_calibration("hello").unwrap_err().contains("neither"));
+        assert!(
+            parse_calibration("P0: 1 0 0 0 0 1 0 0 0 0 1 0\nP1: 1 0 0 5 0 1 0 0 0 0 1 0")
+                .unwrap_err()
+                .contains("positive")
+        );
+    }
+}
