@@ -800,6 +800,30 @@ fn a_recorded_pair_replays_through_reconstruct_and_is_scored_in_depth() {
     assert!(s.bad1 <= stock.bad1 && s.coverage >= stock.coverage, "{s}");
     // depth error within a few percent of the depth (1 px of disparity at 20 m is 1 m)
     assert!(s.mean_relative < 0.05 && s.p95_depth < 1.5, "{s}");
+    // and through `process`, as the station would: the same scan, a template conformed
+    // onto it (a pig onto a street: the distortion warning must say so), the result whole
+    std::fs::write(
+        d.path().join("replay/station.toml"),
+        "[station]\nname = \"replay\"\ndata = \"data\"\n[template]\ngeneric = \"pig\"\nvertices = 3000\n[rig]\nfile = \"rig.toml\"\ncalibration = \"calibration\"\n",
+    )
+    .unwrap();
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_conformd"))
+        .arg("process")
+        .arg(set)
+        .arg("--config")
+        .arg(d.path().join("replay/station.toml"))
+        .arg("--out")
+        .arg(d.path().join("results"))
+        .output()
+        .unwrap();
+    let text =
+        String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{text}");
+    assert!(text.contains("distorted"), "{text}");
+    let result = d.path().join("results").join(set.file_name().unwrap());
+    let processed = conformd::mesh::io::read_mesh(&result.join("scan.ply")).unwrap();
+    assert_eq!(processed.vertices.len(), scan.vertices.len());
+    assert!(result.join("conformed.ply").is_file() && result.join("report.json").is_file());
     // the scan scored against another pod, or a calibration and truth that cannot be
     // read, are refused naming what was wrong, and nothing is written
     let e = conformd::jobs::score_scan(&scan, &station, Some("nope"), &set.join("truth.png"), None)
