@@ -714,23 +714,26 @@ fn a_recorded_pair_replays_through_reconstruct_and_is_scored_in_depth() {
     use conformd::stereo::truth::{read_truth, score};
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/stereo/kitti-000070");
     let d = tempfile::tempdir().unwrap();
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_conformd"))
-        .arg("import-pair")
-        .arg(root.join("left.png"))
-        .arg(root.join("right.png"))
-        .arg("--calib")
-        .arg(root.join("calib.txt"))
-        .arg("--truth")
-        .arg(root.join("disp_noc.png"))
-        .arg("--out")
-        .arg(d.path().join("replay"))
-        .output()
-        .unwrap();
-    let text = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        out.status.success(),
-        "{text}{}",
-        String::from_utf8_lossy(&out.stderr)
+    // runs conformd, asserts it succeeded, returns what it printed
+    let conformd = |cmd: &mut std::process::Command| -> String {
+        let out = cmd.output().unwrap();
+        let text = String::from_utf8_lossy(&out.stdout).to_string()
+            + &String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success(), "{text}");
+        text
+    };
+    let bin = || std::process::Command::new(env!("CARGO_BIN_EXE_conformd"));
+    conformd(
+        bin()
+            .arg("import-pair")
+            .arg(root.join("left.png"))
+            .arg(root.join("right.png"))
+            .arg("--calib")
+            .arg(root.join("calib.txt"))
+            .arg("--truth")
+            .arg(root.join("disp_noc.png"))
+            .arg("--out")
+            .arg(d.path().join("replay")),
     );
     let sets: Vec<_> = std::fs::read_dir(d.path().join("replay/captures"))
         .unwrap()
@@ -748,24 +751,18 @@ fn a_recorded_pair_replays_through_reconstruct_and_is_scored_in_depth() {
         assert!(set.join(f).is_file(), "{f} missing from {}", set.display());
     }
     // the command the import prints, run as an operator would
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_conformd"))
-        .arg("reconstruct")
-        .arg(set)
-        .arg("--rig")
-        .arg(d.path().join("replay/rig.toml"))
-        .arg("--calibration")
-        .arg(d.path().join("replay/calibration"))
-        .arg("--out")
-        .arg(d.path().join("scan.ply"))
-        .arg("--truth")
-        .arg(set.join("truth.png"))
-        .output()
-        .unwrap();
-    let text = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        out.status.success(),
-        "{text}{}",
-        String::from_utf8_lossy(&out.stderr)
+    let text = conformd(
+        bin()
+            .arg("reconstruct")
+            .arg(set)
+            .arg("--rig")
+            .arg(d.path().join("replay/rig.toml"))
+            .arg("--calibration")
+            .arg(d.path().join("replay/calibration"))
+            .arg("--out")
+            .arg(d.path().join("scan.ply"))
+            .arg("--truth")
+            .arg(set.join("truth.png")),
     );
     assert!(
         text.contains("depth error mean") && text.contains("coverage"),
@@ -807,18 +804,15 @@ fn a_recorded_pair_replays_through_reconstruct_and_is_scored_in_depth() {
         "[station]\nname = \"replay\"\ndata = \"data\"\n[template]\ngeneric = \"pig\"\nvertices = 3000\n[rig]\nfile = \"rig.toml\"\ncalibration = \"calibration\"\n",
     )
     .unwrap();
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_conformd"))
-        .arg("process")
-        .arg(set)
-        .arg("--config")
-        .arg(d.path().join("replay/station.toml"))
-        .arg("--out")
-        .arg(d.path().join("results"))
-        .output()
-        .unwrap();
-    let text =
-        String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "{text}");
+    let text = conformd(
+        bin()
+            .arg("process")
+            .arg(set)
+            .arg("--config")
+            .arg(d.path().join("replay/station.toml"))
+            .arg("--out")
+            .arg(d.path().join("results")),
+    );
     assert!(text.contains("distorted"), "{text}");
     let result = d.path().join("results").join(set.file_name().unwrap());
     let processed = conformd::mesh::io::read_mesh(&result.join("scan.ply")).unwrap();

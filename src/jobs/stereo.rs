@@ -393,6 +393,30 @@ pub fn reconstruct(
     reconstruct_with(&mut station, capture, out, report_path, as_mesh)
 }
 
+/// A rectified pair's two images in grey, refused naming the file if one cannot be read
+/// or the two differ in size.
+fn read_rectified_pair(
+    left: &Path,
+    right: &Path,
+) -> Result<(image::GrayImage, image::GrayImage), JobError> {
+    let read = |p: &Path| -> Result<image::GrayImage, JobError> {
+        Ok(image::open(p)
+            .map_err(|e| JobError::Usage(format!("{}: {e}", p.display())))?
+            .to_luma8())
+    };
+    let (l, r) = (read(left)?, read(right)?);
+    if l.dimensions() != r.dimensions() {
+        return Err(JobError::Usage(format!(
+            "{} is {:?} but {} is {:?}: a rectified pair has one size",
+            left.display(),
+            l.dimensions(),
+            right.display(),
+            r.dimensions()
+        )));
+    }
+    Ok((l, r))
+}
+
 /// Disparity of an already-rectified pair, written as PFM (or 16-bit PNG x16 for .png).
 pub fn disparity(
     left: &Path,
@@ -400,11 +424,6 @@ pub fn disparity(
     opts: &crate::stereo::disparity::SgbmOptions,
     out: &Path,
 ) -> Result<crate::stereo::disparity::Disparity, JobError> {
-    let read = |p: &Path| -> Result<image::GrayImage, JobError> {
-        Ok(image::open(p)
-            .map_err(|e| JobError::Usage(format!("{}: {e}", p.display())))?
-            .to_luma8())
-    };
     let ext = out
         .extension()
         .and_then(|e| e.to_str())
@@ -417,16 +436,7 @@ pub fn disparity(
         )));
     }
     opts.validate().map_err(JobError::Usage)?;
-    let (l, r) = (read(left)?, read(right)?);
-    if l.dimensions() != r.dimensions() {
-        return Err(JobError::Usage(format!(
-            "{} is {:?} but {} is {:?}: a rectified pair has one size",
-            left.display(),
-            l.dimensions(),
-            right.display(),
-            r.dimensions()
-        )));
-    }
+    let (l, r) = read_rectified_pair(left, right)?;
     if opts.num_disparities as u32 >= l.width() {
         return Err(JobError::Usage(format!(
             "{} disparities cannot be searched in an image {} pixels wide",
@@ -513,21 +523,7 @@ pub fn import_pair(
             source,
         })
     };
-    let grey = |p: &Path| -> Result<image::GrayImage, JobError> {
-        Ok(image::open(p)
-            .map_err(|e| JobError::Usage(format!("{}: {e}", p.display())))?
-            .to_luma8())
-    };
-    let (l, r) = (grey(left)?, grey(right)?);
-    if l.dimensions() != r.dimensions() {
-        return Err(JobError::Usage(format!(
-            "{} is {:?} but {} is {:?}: a rectified pair has one size",
-            left.display(),
-            l.dimensions(),
-            right.display(),
-            r.dimensions()
-        )));
-    }
+    let (l, r) = read_rectified_pair(left, right)?;
     let calib_text = read(calib)?;
     let cal = crate::stereo::recorded::parse_calibration(&String::from_utf8_lossy(&calib_text))
         .map_err(|e| JobError::Usage(format!("{}: {e}", calib.display())))?;
