@@ -607,6 +607,30 @@ fn recorded_pairs_are_scored_against_their_ground_truth() {
         let err = String::from_utf8_lossy(&out.stderr);
         assert!(!out.status.success() && err.contains(expect), "{err}");
     }
+    // a truth read at the wrong scale is pointed out (the quarter-size PNG read as pixels)
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_conformd"))
+        .args([
+            "disparity",
+            "--num-disparities",
+            "64",
+            "--truth-scale",
+            "1",
+            "--truth",
+        ])
+        .arg(root.join("cones/disp2.png"))
+        .arg(root.join("cones/im2.png"))
+        .arg(root.join("cones/im6.png"))
+        .arg("--out")
+        .arg(dir.path().join("d.pfm"))
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success()
+            && text.contains("0.25 times the truth's")
+            && text.contains("--truth-scale"),
+        "{text}"
+    );
     std::fs::write(dir.path().join("cut.pfm"), b"Pf\n450 375\n-1\n\0\0\0\0").unwrap();
     let e = conformd::jobs::score_disparity(
         &conformd::stereo::disparity::Disparity {

@@ -29,6 +29,8 @@ pub struct TruthScore {
     pub bad2: f64,
     /// mean absolute error of the given ones, pixels
     pub mean_abs: f64,
+    /// the median ratio of the map to the truth, when far from 1 ([`scale_mismatch`])
+    pub scale_mismatch: Option<f64>,
 }
 
 impl std::fmt::Display for TruthScore {
@@ -41,7 +43,14 @@ impl std::fmt::Display for TruthScore {
             self.mean_abs,
             self.coverage * 100.0,
             self.known
-        )
+        )?;
+        if let Some(r) = self.scale_mismatch {
+            write!(
+                f,
+                "\nwarning: the map's disparities are {r:.2} times the truth's (median): is the truth's scale right? An 8-bit PNG is read as disparity x 4 (Middlebury's quarter-size sets), a 16-bit one as x 256 (KITTI); --truth-scale 1 reads a truth stored in pixels"
+            )?;
+        }
+        Ok(())
     }
 }
 
@@ -273,7 +282,28 @@ pub fn score(d: &Disparity, truth: &Truth, min_x: u32) -> Result<TruthScore, Str
         bad1: share(bad1, valid),
         bad2: share(bad2, valid),
         mean_abs: if valid > 0 { abs / valid as f64 } else { 0.0 },
+        scale_mismatch: scale_mismatch(d, truth),
     })
+}
+
+/// The median ratio of the map's disparities to the truth's where both are known, when
+/// it is far from 1 (outside 0.8-1.25): a truth read with the wrong scale, which would
+/// make every figure meaningless. None when they agree or too few pixels overlap.
+pub fn scale_mismatch(d: &Disparity, truth: &Truth) -> Option<f64> {
+    let mut ratios: Vec<f32> = d
+        .values
+        .iter()
+        .zip(&truth.values)
+        .filter(|(v, t)| v.is_finite() && **v > 0.5 && t.is_finite() && **t > 0.5)
+        .map(|(v, t)| v / t)
+        .collect();
+    if ratios.len() < 100 {
+        return None;
+    }
+    let mid = ratios.len() / 2;
+    let (_, m, _) = ratios.select_nth_unstable_by(mid, f32::total_cmp);
+    let m = *m as f64;
+    (!(0.8..=1.25).contains(&m)).then_some(m)
 }
 
 #[cfg(test)]
@@ -299,6 +329,24 @@ mod tests {
         assert!((s.coverage - 0.8).abs() < 1e-12);
         assert!((s.bad1 - 0.25).abs() < 1e-12 && s.bad2 == 0.0);
         assert!(parse_pfm(b"P5\n1 1\n255\n").is_err());
+        // a truth read at a quarter of its scale is noticed
+        let big = Disparity {
+            width: 200,
+            height: 1,
+            values: (0..200).map(|i| 10.0 + i as f32 * 0.1).collect(),
+        };
+        let quarter = Truth {
+            width: 200,
+            height: 1,
+            values: big.values.iter().map(|v| v / 4.0).collect(),
+        };
+        assert!(scale_mismatch(&big, &quarter).is_some_and(|r| (r - 4.0).abs() < 1e-3));
+        let same = Truth {
+            width: 200,
+            height: 1,
+            values: big.values.clone(),
+        };
+        assert_eq!(scale_mismatch(&big, &same), None);
         assert!(
             parse_pfm(b"Pf\n4 4\n-1\n\0\0")
                 .unwrap_err()
