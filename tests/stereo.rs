@@ -541,6 +541,22 @@ fn rig_file_reconstruct_settings() {
         .unwrap_err()
         .to_string();
     assert!(e.contains("rig.toml") && e.contains("voxels"), "{e}");
+    // the natural profile's keys are range-checked too, each named
+    for (bad, key) in [
+        ("cross_check = -1.0", "cross_check"),
+        ("contrast_window = 4", "contrast_window"),
+        ("occlusion_margin = -2", "occlusion_margin"),
+    ] {
+        let e = RigFile::load(&write(&format!(
+            "[reconstruct.sgbm]\nprofile = \"natural\"\n{bad}\n"
+        )))
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("[reconstruct.sgbm]") && e.contains(key),
+            "{bad}: {e}"
+        );
+    }
 }
 
 /// Recorded pairs with their truth (tests/data/stereo): the truth readers decode each
