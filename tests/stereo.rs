@@ -580,17 +580,24 @@ fn recorded_pairs_are_scored_against_their_ground_truth() {
         assert!(max > lo && max < hi, "{truth}: largest disparity {max}");
     }
     let dir = tempfile::tempdir().unwrap();
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_conformd"))
-        .args(["disparity", "--num-disparities", "64", "--truth"])
-        .arg(root.join("cones/disp2.png"))
-        .arg(root.join("cones/im2.png"))
-        .arg(root.join("cones/im6.png"))
-        .arg("--out")
-        .arg(dir.path().join("d.pfm"))
-        .output()
-        .unwrap();
-    let text = String::from_utf8_lossy(&out.stdout);
-    assert!(out.status.success(), "{text}");
+    // Cones through `disparity --truth` with `extra` options; what it printed
+    let cones = |extra: &[&str]| -> String {
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_conformd"))
+            .args(["disparity", "--num-disparities", "64"])
+            .args(extra)
+            .arg("--truth")
+            .arg(root.join("cones/disp2.png"))
+            .arg(root.join("cones/im2.png"))
+            .arg(root.join("cones/im6.png"))
+            .arg("--out")
+            .arg(dir.path().join("d.pfm"))
+            .output()
+            .unwrap();
+        let text = String::from_utf8_lossy(&out.stdout).to_string();
+        assert!(out.status.success(), "{text}");
+        text
+    };
+    let text = cones(&[]);
     // "against the truth: 7.77% of valid pixels more than 1 px off ..., coverage 61.9% ..."
     let pct = |after: &str| -> f64 {
         let s = &text[text.find(after).unwrap() + after.len()..];
@@ -624,27 +631,9 @@ fn recorded_pairs_are_scored_against_their_ground_truth() {
         assert!(!out.status.success() && err.contains(expect), "{err}");
     }
     // a truth read at the wrong scale is pointed out (the quarter-size PNG read as pixels)
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_conformd"))
-        .args([
-            "disparity",
-            "--num-disparities",
-            "64",
-            "--truth-scale",
-            "1",
-            "--truth",
-        ])
-        .arg(root.join("cones/disp2.png"))
-        .arg(root.join("cones/im2.png"))
-        .arg(root.join("cones/im6.png"))
-        .arg("--out")
-        .arg(dir.path().join("d.pfm"))
-        .output()
-        .unwrap();
-    let text = String::from_utf8_lossy(&out.stdout);
+    let text = cones(&["--truth-scale", "1"]);
     assert!(
-        out.status.success()
-            && text.contains("0.25 times the truth's")
-            && text.contains("--truth-scale"),
+        text.contains("0.25 times the truth's") && text.contains("--truth-scale"),
         "{text}"
     );
     std::fs::write(dir.path().join("cut.pfm"), b"Pf\n450 375\n-1\n\0\0\0\0").unwrap();
