@@ -344,10 +344,8 @@ pub fn to_pixels(disp: &Mat, min_disparity: i32) -> opencv::Result<Disparity> {
     })
 }
 
-/// A rectified pair matched: SGBM's own disparity and what conformd's filters keep of it.
+/// A rectified pair matched: what conformd's filters keep of SGBM's disparity.
 pub struct Matched {
-    /// SGBM's disparity in pixels (CV_32F), unmatched `min_disparity - 1`
-    pub sgbm: Mat,
     /// the kept disparity, refined where `subpixel_steps` > 0, row-major, invalid = inf
     pub values: Vec<f32>,
     /// pixels SGBM matched, before conformd's filters
@@ -455,7 +453,6 @@ pub fn match_pair(
         cross_check(&mut values, raw, m.data_typed::<f32>()?, w, unmatched, o);
     }
     Ok(Matched {
-        sgbm,
         values,
         sgbm_matched,
         seconds_own: own.elapsed().as_secs_f64(),
