@@ -92,9 +92,9 @@ fn main() {
     let mut station =
         conformd::stereo::rig::Reconstruction::load(&p.rig, Some(&p.calibration)).unwrap();
     let scan_path = dir.path().join("scan.ply");
-    let r = conformd::jobs::reconstruct_with(&mut station, &p.capture, &scan_path, None, false)
-        .unwrap();
-    let scan = conformd::mesh::io::read_mesh(&scan_path).unwrap();
+    let (scan, r) =
+        conformd::jobs::reconstruct_scan(&mut station, &p.capture, &scan_path, None, false)
+            .unwrap();
     let s =
         conformd::jobs::score_scan(&scan, &station, None, p.truth.as_ref().unwrap(), None).unwrap();
     println!(

@@ -261,11 +261,10 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
         } => {
             let mut station =
                 conformd::stereo::rig::Reconstruction::load(&rig, calibration.as_deref())?;
-            let r = jobs::reconstruct_with(&mut station, &capture, &out, report.as_deref(), mesh)?;
+            let (scan, r) =
+                jobs::reconstruct_scan(&mut station, &capture, &out, report.as_deref(), mesh)?;
             println!("{r}\nwrote {}", out.display());
             if let Some(t) = truth {
-                // the scan as written is what is judged
-                let scan = conformd::mesh::io::read_mesh(&out)?;
                 println!(
                     "{}",
                     jobs::score_scan(&scan, &station, truth_pod.as_deref(), &t, truth_scale)?

@@ -803,9 +803,9 @@ fn a_recorded_pair_replays_through_reconstruct_and_is_scored_in_depth() {
         Some(&d.path().join("replay/calibration")),
     )
     .unwrap();
-    conformd::jobs::reconstruct_with(&mut station, set, &d.path().join("s.ply"), None, false)
-        .unwrap();
-    let scan = conformd::mesh::io::read_mesh(&d.path().join("s.ply")).unwrap();
+    let (scan, _) =
+        conformd::jobs::reconstruct_scan(&mut station, set, &d.path().join("s.ply"), None, false)
+            .unwrap();
     let s =
         conformd::jobs::score_scan(&scan, &station, None, &set.join("truth.png"), None).unwrap();
     let lg = image::open(root.join("left.png")).unwrap().to_luma8();

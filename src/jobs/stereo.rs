@@ -360,6 +360,17 @@ pub fn reconstruct_with(
     report_path: Option<&Path>,
     as_mesh: bool,
 ) -> Result<crate::stereo::reconstruct::ReconstructReport, JobError> {
+    Ok(reconstruct_scan(station, capture, out, report_path, as_mesh)?.1)
+}
+
+/// As [`reconstruct_with`], also handing back the scan it wrote (for `--truth`).
+pub fn reconstruct_scan(
+    station: &mut Reconstruction,
+    capture: &Path,
+    out: &Path,
+    report_path: Option<&Path>,
+    as_mesh: bool,
+) -> Result<(mesh::Mesh, crate::stereo::reconstruct::ReconstructReport), JobError> {
     let set = CaptureSetDir::open(capture)?;
     let images = crate::station::pipeline::read_pod_images(&set, &station.pods)?;
     let (scan, report) = station
@@ -369,7 +380,7 @@ pub fn reconstruct_with(
     if let Some(p) = report_path {
         write_report(p, &report)?;
     }
-    Ok(report)
+    Ok((scan, report))
 }
 
 /// Reconstructs a capture set into a scan in the rig frame: every pod of the rig file
@@ -532,10 +543,17 @@ pub fn import_pair(
         None => 128,
     });
     let (w, h) = l.dimensions();
-    let mut extra = vec![("calib.txt".to_string(), calib_text)];
-    if let Some(t) = truth {
-        // read now, so that a truth of the wrong size is refused before anything is written
-        let parsed = crate::stereo::truth::read_truth(t, None).map_err(JobError::Usage)?;
+    // the truth is kept under one name whatever it was called, its type kept
+    let truth_file = truth.map(|t| {
+        let ext = t.extension().and_then(|e| e.to_str()).unwrap_or("png");
+        format!("truth.{}", ext.to_ascii_lowercase())
+    });
+    let mut extra: Vec<(&str, Vec<u8>)> = vec![("calib.txt", calib_text)];
+    if let (Some(t), Some(file)) = (truth, &truth_file) {
+        // parsed now, so that a truth of the wrong size is refused before anything is
+        // written; copied as it was
+        let bytes = read(t)?;
+        let parsed = crate::stereo::truth::parse_truth(t, &bytes, None).map_err(JobError::Usage)?;
         if (parsed.width, parsed.height) != (w, h) {
             return Err(JobError::Usage(format!(
                 "{}: the truth is {} x {}, the images {w} x {h}",
@@ -544,8 +562,7 @@ pub fn import_pair(
                 parsed.height
             )));
         }
-        let ext = t.extension().and_then(|e| e.to_str()).unwrap_or("png");
-        extra.push((format!("truth.{}", ext.to_ascii_lowercase()), read(t)?));
+        extra.push((file, bytes));
     }
     let stem = left
         .parent()
@@ -575,7 +592,6 @@ pub fn import_pair(
         &cal_dir.join(format!("{IMPORTED_POD}.yml")),
         pod.opencv_yaml_of(Some(&name)).as_bytes(),
     )?;
-    let extra: Vec<(&str, Vec<u8>)> = extra.iter().map(|(n, b)| (n.as_str(), b.clone())).collect();
     let images = vec![
         (IMPORTED_POD.to_string(), "left", w, h, l.into_raw()),
         (IMPORTED_POD.to_string(), "right", w, h, r.into_raw()),
@@ -589,10 +605,7 @@ pub fn import_pair(
         images,
         &extra,
     )?;
-    let truth = extra
-        .iter()
-        .find(|(n, _)| n.starts_with("truth."))
-        .map(|(n, _)| capture.join(n));
+    let truth = truth_file.map(|n| capture.join(n));
     Ok(ImportedPair {
         rig: rig_path,
         calibration: cal_dir,

@@ -155,6 +155,13 @@ pub fn score_depth(points: &[V3], pod: &Pod, truth: &Truth) -> Result<DepthScore
 /// `.png`, 0 unknown, divided by `scale`: by default 256 for a 16-bit PNG (KITTI) and 4
 /// for an 8-bit one (Middlebury 2001-2006 quarter-size sets).
 pub fn read_truth(path: &Path, scale: Option<f64>) -> Result<Truth, String> {
+    let bytes = std::fs::read(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    parse_truth(path, &bytes, scale)
+}
+
+/// [`read_truth`] of a file's bytes already read; `path` gives its type and its name in
+/// errors.
+pub fn parse_truth(path: &Path, bytes: &[u8], scale: Option<f64>) -> Result<Truth, String> {
     let name = path.display();
     let ext = path
         .extension()
@@ -162,12 +169,10 @@ pub fn read_truth(path: &Path, scale: Option<f64>) -> Result<Truth, String> {
         .unwrap_or("")
         .to_ascii_lowercase();
     match ext.as_str() {
-        "pfm" => {
-            let bytes = std::fs::read(path).map_err(|e| format!("{name}: {e}"))?;
-            parse_pfm(&bytes).map_err(|e| format!("{name}: {e}"))
-        }
+        "pfm" => parse_pfm(bytes).map_err(|e| format!("{name}: {e}")),
         "png" => {
-            let img = image::open(path).map_err(|e| format!("{name}: {e}"))?;
+            let img = image::load_from_memory_with_format(bytes, image::ImageFormat::Png)
+                .map_err(|e| format!("{name}: {e}"))?;
             let sixteen = matches!(
                 img.color(),
                 image::ColorType::L16 | image::ColorType::La16 | image::ColorType::Rgb16
