@@ -76,9 +76,13 @@ fn principal_frame(p: &[V3]) -> (V3, Matrix3<f64>, f64) {
     (c, m, e.eigenvalues.sum().max(0.0).sqrt())
 }
 
-/// Finds the similarity taking the template (`template` positions) onto the scan; with
-/// it, the runner-up when its residual is within [`AMBIGUOUS_RESIDUAL_RATIO`] of the
-/// best (both refined), for the caller to fit both.
+/// Finds the similarity taking the template onto the scan; with it, the runner-up when
+/// its residual is within [`AMBIGUOUS_RESIDUAL_RATIO`] of the best (both refined), for
+/// the caller to fit both.
+///
+/// - `template`: points spread evenly over the template's surface (`Mesh::surface_samples`):
+///   its vertices would weigh a densely triangulated part more than the rest, and the
+///   principal axes and scale would follow the triangulation rather than the shape
 pub fn auto_align(
     template: &[V3],
     scan: &ScanSurface,

@@ -911,7 +911,8 @@ fn global_mapping(
             )
         }
         None => {
-            let (sim, runner_up, rep) = align::auto_align(&template.vertices, surface, &opts.align);
+            let samples = template.surface_samples(ALIGN_TEMPLATE_SAMPLES);
+            let (sim, runner_up, rep) = align::auto_align(&samples, surface, &opts.align);
             let placed = |s: &crate::mesh::transform::Similarity| -> Hypothesis {
                 (template.vertices.iter().map(|v| s.apply(v)).collect(), *s)
             };
@@ -924,6 +925,10 @@ fn global_mapping(
         }
     })
 }
+
+/// Points spread over the template's surface for the automatic alignment: about twice
+/// the scan samples its ICP refines on.
+const ALIGN_TEMPLATE_SAMPLES: usize = 8000;
 
 /// One hypothesis carried through the elastic fit, with its score (lower is better).
 struct FittedHypothesis<'a> {

@@ -96,6 +96,45 @@ impl Mesh {
         vertex_normals(&self.vertices, &self.triangles)
     }
 
+    /// `count` points spread evenly over the surface by area (stratified along the
+    /// triangles' cumulative area), whatever the triangulation: statistics of the shape
+    /// that a dense patch of small triangles does not outweigh. Deterministic.
+    ///
+    /// Returns min(count, ...) points; none for a mesh without area.
+    pub fn surface_samples(&self, count: usize) -> Vec<V3> {
+        let areas: Vec<f64> = (0..self.triangles.len())
+            .map(|t| 0.5 * self.face_normal_scaled(t).norm())
+            .collect();
+        let total: f64 = areas.iter().sum();
+        if !(total > 0.0) || count == 0 {
+            return Vec::new();
+        }
+        let step = total / count as f64;
+        let mut out = Vec::with_capacity(count);
+        // the k-th sample sits at (k + 1/2) steps along the cumulative area; several in one
+        // large triangle take different barycentric points (a low-discrepancy sequence)
+        let mut next = 0.5 * step;
+        let mut acc = 0.0;
+        for (t, &a) in areas.iter().enumerate() {
+            let mut j = 0usize;
+            while next < acc + a && out.len() < count {
+                let [p, q, r] = self.corners(t);
+                let (mut u, mut v) = (
+                    (0.5 + j as f64 * 0.618_033_988_75).fract(),
+                    (0.5 + j as f64 * 0.754_877_666_25).fract(),
+                );
+                if u + v > 1.0 {
+                    (u, v) = (1.0 - u, 1.0 - v);
+                }
+                out.push(p + (q - p) * u + (r - p) * v);
+                next += step;
+                j += 1;
+            }
+            acc += a;
+        }
+        out
+    }
+
     /// Total surface area.
     pub fn area(&self) -> f64 {
         (0..self.triangles.len())

@@ -41,6 +41,26 @@ pub const MESHES: &[DevMesh] = &[
         file: "hand.obj",
         traits: "open at the wrist, thin fingers, edge CV 0.44",
     },
+    DevMesh {
+        name: "woman",
+        file: "human_woman.obj",
+        traits: "SMPL body of another person, the man's vertex order",
+    },
+    DevMesh {
+        name: "neutral",
+        file: "human_neutral.obj",
+        traits: "SMPL-X body, 10k vertices, refined unevenly in the cases",
+    },
+    DevMesh {
+        name: "cow",
+        file: "cow.obj",
+        traits: "four-legged, horns, 10.8k vertices",
+    },
+    DevMesh {
+        name: "koala-dense",
+        file: "koala_dense.obj",
+        traits: "four-legged, 50k vertices",
+    },
 ];
 
 pub fn data_dir() -> PathBuf {
@@ -195,6 +215,9 @@ pub struct DevCaseSpec {
     pub landmark_noise: f64,
     /// turn (degrees, about a random axis) and shift (relative) of the subject as a whole
     pub turn: f64,
+    /// turn about the vertical (z) through the subject's centre, degrees: a heading, as a
+    /// station sees it (its up axis known)
+    pub heading: f64,
     pub shift: f64,
     pub seed: u64,
 }
@@ -208,6 +231,7 @@ impl Default for DevCaseSpec {
             landmarks: 12,
             landmark_noise: 0.002,
             turn: 0.0,
+            heading: 0.0,
             shift: 0.0,
             seed: 3,
         }
@@ -218,11 +242,30 @@ impl Default for DevCaseSpec {
 /// shifted as asked, scanned from four sides and above; landmarks on the first
 /// farthest-point samples (extremities first), their scan positions the truth plus noise.
 pub fn case(template: &Mesh, spec: &DevCaseSpec) -> Case {
-    let nb = topology::vertex_neighbours(template.vertices.len(), &template.triangles);
-    let ext: Extremities = posing::extremities(template, &nb, spec.landmarks.max(spec.pose.limbs));
-    let mut truth = posing::pose(template, &nb, &ext, &spec.pose);
+    case_onto(template, template, spec)
+}
+
+/// [`case`] with another subject in the template's vertex order (another person's
+/// registered mesh): the subject is posed and scanned, so vertex i of the template truly
+/// belongs where vertex i of the posed subject is.
+pub fn case_onto(template: &Mesh, subject: &Mesh, spec: &DevCaseSpec) -> Case {
+    assert_eq!(
+        template.vertices.len(),
+        subject.vertices.len(),
+        "a subject in the template's vertex order"
+    );
+    let nb = topology::vertex_neighbours(subject.vertices.len(), &subject.triangles);
+    let ext: Extremities = posing::extremities(subject, &nb, spec.landmarks.max(spec.pose.limbs));
+    let mut truth = posing::pose(subject, &nb, &ext, &spec.pose);
     let mut rng = ChaCha8Rng::seed_from_u64(spec.seed);
     let diag = template.diagonal();
+    if spec.heading != 0.0 {
+        let c = truth.iter().sum::<V3>() / truth.len() as f64;
+        let rot = nalgebra::Rotation3::from_axis_angle(&V3::z_axis(), spec.heading.to_radians());
+        for p in &mut truth {
+            *p = c + rot * (*p - c);
+        }
+    }
     if spec.turn != 0.0 || spec.shift != 0.0 {
         let axis = nalgebra::Unit::new_normalize(V3::new(
             rng.random_range(-1.0..1.0),
@@ -331,6 +374,30 @@ pub struct DevCase {
     pub name: String,
     pub case: Case,
     pub landmarks: bool,
+    /// the scan's up axis when the station would know it (the template is z-up): given to
+    /// the landmark-free alignment as `[align] template_up = scan_up`
+    pub scan_up: Option<V3>,
+    pub part: Part,
+}
+
+/// Which part of the set a case belongs to: the defaults are chosen on `Development`;
+/// `Validation` is only ever measured, so that its figures stay evidence.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Part {
+    Development,
+    Validation,
+}
+
+impl DevCase {
+    /// The conformation options for this case: `base` with the up hint when it has one.
+    pub fn options(&self, base: &crate::conform::ConformOptions) -> crate::conform::ConformOptions {
+        let mut o = base.clone();
+        if let Some(u) = self.scan_up {
+            o.align.template_up = Some([0.0, 0.0, 1.0]);
+            o.align.scan_up = Some([u.x, u.y, u.z]);
+        }
+        o
+    }
 }
 
 /// The development table: every mesh posed and scanned, with landmarks and without
@@ -361,11 +428,15 @@ pub fn standard_cases(names: &[&str]) -> Result<Vec<DevCase>, String> {
             name: format!("{} posed, landmarks", m.name),
             case: case(&mesh, &posed),
             landmarks: true,
+            scan_up: None,
+            part: Part::Development,
         });
         out.push(DevCase {
             name: format!("{} turned, no landmarks", m.name),
             case: case(&mesh, &turned),
             landmarks: false,
+            scan_up: None,
+            part: Part::Development,
         });
         if m.name == "koala" {
             let hard = DevCaseSpec {
@@ -382,6 +453,8 @@ pub fn standard_cases(names: &[&str]) -> Result<Vec<DevCase>, String> {
                 name: format!("{} hard posture, landmarks", m.name),
                 case: case(&mesh, &hard),
                 landmarks: true,
+                scan_up: None,
+                part: Part::Development,
             });
         }
     }
@@ -516,11 +589,188 @@ pub fn captured_cases() -> Result<Vec<DevCase>, String> {
             name: "captured pig as template, landmarks".into(),
             case,
             landmarks: true,
+            scan_up: None,
+            part: Part::Development,
         },
         DevCase {
             name: "captured pig as template, none".into(),
             case: again,
             landmarks: false,
+            scan_up: None,
+            part: Part::Development,
         },
     ])
+}
+
+/// The mesh with the edges of every triangle `select` takes (by its centroid) split at
+/// their midpoints; triangles with one, two or three split edges become two, three or
+/// four, so the result has no T-junctions and keeps its winding. Refining a part of a
+/// mesh this way, once or more, gives the dense and very uneven triangulations real
+/// templates have (fine where someone modelled detail, coarse elsewhere, slivers between).
+pub fn refine(mesh: &Mesh, select: impl Fn(&V3) -> bool) -> Mesh {
+    use std::collections::HashMap;
+    let mut v = mesh.vertices.clone();
+    let mut mid: HashMap<[u32; 2], u32> = HashMap::new();
+    for (i, t) in mesh.triangles.iter().enumerate() {
+        let [a, b, c] = mesh.corners(i);
+        if select(&((a + b + c) / 3.0)) {
+            for k in 0..3 {
+                let (p, q) = (t[k], t[(k + 1) % 3]);
+                mid.entry([p.min(q), p.max(q)]).or_insert_with(|| {
+                    v.push((v[p as usize] + v[q as usize]) / 2.0);
+                    (v.len() - 1) as u32
+                });
+            }
+        }
+    }
+    let mut tris = Vec::with_capacity(mesh.triangles.len() * 2);
+    for t in &mesh.triangles {
+        let m: [Option<u32>; 3] = std::array::from_fn(|k| {
+            let (p, q) = (t[k], t[(k + 1) % 3]);
+            mid.get(&[p.min(q), p.max(q)]).copied()
+        });
+        match m.iter().filter(|x| x.is_some()).count() {
+            0 => tris.push(*t),
+            3 => {
+                let [ab, bc, ca] = m.map(|x| x.unwrap_or(0));
+                tris.extend([[t[0], ab, ca], [ab, t[1], bc], [ca, bc, t[2]], [ab, bc, ca]]);
+            }
+            1 => {
+                // rotate so that the split edge is (t0, t1)
+                let k = (0..3).find(|&k| m[k].is_some()).unwrap_or(0);
+                let (a, b, c) = (t[k], t[(k + 1) % 3], t[(k + 2) % 3]);
+                let s = m[k].unwrap_or(0);
+                tris.extend([[a, s, c], [s, b, c]]);
+            }
+            _ => {
+                // two split edges: the unsplit one is (t[k+2], t[k]) for the k below
+                let k = (0..3).find(|&k| m[(k + 2) % 3].is_none()).unwrap_or(0);
+                let (a, b, c) = (t[k], t[(k + 1) % 3], t[(k + 2) % 3]);
+                let (s, u) = (m[k].unwrap_or(0), m[(k + 1) % 3].unwrap_or(0));
+                tris.extend([[a, s, c], [s, b, u], [s, u, c]]);
+            }
+        }
+    }
+    Mesh::new(v, tris)
+}
+
+/// A body refined until it has more than 50k vertices with very uneven triangles: all of
+/// the upper body once (above 45% of its height), its upper right quarter (above 60%,
+/// right of the middle) once more.
+pub fn dense_uneven_body(mesh: &Mesh) -> Mesh {
+    let (lo, hi) = mesh.bounding_box().expect("a body");
+    let h = |f: f64| lo.z + f * (hi.z - lo.z);
+    let x = |f: f64| (lo.x + hi.x) / 2.0 + f * (hi.x - lo.x) / 2.0;
+    let m = refine(mesh, |p| p.z > h(0.45));
+    refine(&m, |p| p.z > h(0.6) && p.x > x(0.0))
+}
+
+/// The harder set of issue 29: large postures (limbs swung 45-90 degrees, the whole bent
+/// and twisted, a new heading), one person's mesh onto another person's, dense uneven
+/// triangulations (50k+ vertices, edge CV near 1 and over), holes; each case with 12
+/// landmarks and without (the up axis given, as a station's config does).
+/// `Part::Development` is what the defaults may be tuned on; `Part::Validation` (the cow,
+/// the dense koala, the man onto the woman, the dense SMPL-X body) is only measured.
+pub fn hard_cases(part: Part, names: &[&str]) -> Result<Vec<DevCase>, String> {
+    let large = |seed: u64, heading: f64| DevCaseSpec {
+        pose: PoseSettings {
+            limbs: 8,
+            limb_degrees: (45.0, 90.0),
+            bend: 20.0,
+            twist: 15.0,
+            scale: 1.05,
+            seed,
+        },
+        heading,
+        seed: seed + 100,
+        ..DevCaseSpec::default()
+    };
+    // (name, what it is, template, subject, spec)
+    let mut made: Vec<(String, Mesh, Option<Mesh>, DevCaseSpec)> = Vec::new();
+    let want = |n: &str| names.is_empty() || names.contains(&n);
+    match part {
+        Part::Development => {
+            if want("koala") {
+                made.push((
+                    "koala large posture".into(),
+                    load("koala")?,
+                    None,
+                    large(7, 50.0),
+                ));
+            }
+            if want("cat") {
+                let cat = with_holes(&uneven(&load("cat")?, 0.5, 11), 3, 0.03, 12).0;
+                made.push(("cat large posture".into(), cat, None, large(8, -70.0)));
+            }
+            if want("human") {
+                made.push((
+                    "man large posture".into(),
+                    load("human")?,
+                    None,
+                    large(9, 120.0),
+                ));
+            }
+            if want("human-dense") {
+                let dense = dense_uneven_body(&load("human")?);
+                made.push(("man dense uneven".into(), dense, None, large(10, 30.0)));
+            }
+        }
+        Part::Validation => {
+            if want("cow") {
+                made.push((
+                    "cow large posture".into(),
+                    load("cow")?,
+                    None,
+                    large(21, -40.0),
+                ));
+            }
+            if want("koala-dense") {
+                made.push((
+                    "koala 50k large posture".into(),
+                    load("koala-dense")?,
+                    None,
+                    large(22, 160.0),
+                ));
+            }
+            if want("woman") {
+                made.push((
+                    "man onto woman".into(),
+                    load("human")?,
+                    Some(load("woman")?),
+                    large(23, -100.0),
+                ));
+            }
+            if want("neutral") {
+                let dense = dense_uneven_body(&load("neutral")?);
+                made.push(("SMPL-X dense uneven".into(), dense, None, large(24, 75.0)));
+            }
+        }
+    }
+    let mut out = Vec::new();
+    for (name, template, subject, spec) in made {
+        let c = case_onto(&template, subject.as_ref().unwrap_or(&template), &spec);
+        let again = Case {
+            template: c.template.clone(),
+            scan: c.scan.clone(),
+            template_landmarks: c.template_landmarks.clone(),
+            scan_landmarks: c.scan_landmarks.clone(),
+            truth: c.truth.clone(),
+            in_hole: c.in_hole.clone(),
+        };
+        out.push(DevCase {
+            name: format!("{name}, landmarks"),
+            case: c,
+            landmarks: true,
+            scan_up: None,
+            part,
+        });
+        out.push(DevCase {
+            name: format!("{name}, none"),
+            case: again,
+            landmarks: false,
+            scan_up: Some(V3::z()),
+            part,
+        });
+    }
+    Ok(out)
 }
