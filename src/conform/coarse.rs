@@ -259,38 +259,7 @@ pub fn run(
         // The other direction: scan samples pull their nearest compatible vertex. Data a
         // part has moved away from (a lifted leg) still reaches that part this way.
         if s.scan_to_template > 0.0 {
-            let arr: Vec<[f64; 3]> = x.iter().map(|p| [p.x, p.y, p.z]).collect();
-            let tree: kiddo::ImmutableKdTree<f64, 3> = kiddo::ImmutableKdTree::new_from_slice(&arr);
-            let step = (scan.points.len() / sampled.max(1)).max(1);
-            let pulls: Vec<(usize, V3, V3)> = (0..scan.points.len())
-                .into_par_iter()
-                .step_by(step)
-                .filter_map(|i| {
-                    let p = scan.points[i];
-                    let sn = scan.normal(i);
-                    let r2 = lim.max_distance * lim.max_distance;
-                    // the nearest vertex mostly faces the same way; only where it does
-                    // not (a thin part's far side) are the 8 nearest searched
-                    let q = [p.x, p.y, p.z];
-                    let one = tree.nearest_one::<kiddo::SquaredEuclidean>(&q);
-                    if one.distance > r2 {
-                        return None;
-                    }
-                    let v = one.item as usize;
-                    if normals[v].dot(&sn) >= s.min_normal_cos {
-                        return Some((v, p, sn));
-                    }
-                    tree.nearest_n::<kiddo::SquaredEuclidean>(
-                        &q,
-                        std::num::NonZero::new(8).unwrap(),
-                    )
-                    .iter()
-                    .filter(|m| m.distance <= r2)
-                    .map(|m| m.item as usize)
-                    .find(|&v| normals[v].dot(&sn) >= s.min_normal_cos)
-                    .map(|v| (v, p, sn))
-                })
-                .collect();
+            let pulls = scan.pulls(&x, &normals, sampled, &lim);
             let w = s.scan_to_template * (sampled as f64 / pulls.len().max(1) as f64).min(4.0);
             for (v, p, sn) in pulls {
                 let foot = x[v] - sn * sn.dot(&(x[v] - p));

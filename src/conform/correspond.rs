@@ -184,6 +184,50 @@ impl ScanSurface {
         })
     }
 
+    /// Pulls from the scan to the template, the other direction of matching: about
+    /// `count` scan points, each with its nearest vertex of `x` that lies within the
+    /// limits and faces the same way (`normals`: #V vertex normals). Returns (vertex,
+    /// scan point, scan normal) triples. Data a part has moved away from (a lifted leg)
+    /// still reaches that part this way.
+    pub fn pulls(
+        &self,
+        x: &[V3],
+        normals: &[V3],
+        count: usize,
+        lim: &MatchLimits,
+    ) -> Vec<(usize, V3, V3)> {
+        use rayon::prelude::*;
+        let arr: Vec<[f64; 3]> = x.iter().map(|p| [p.x, p.y, p.z]).collect();
+        let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&arr);
+        let step = (self.points.len() / count.max(1)).max(1);
+        let r2 = lim.max_distance * lim.max_distance;
+        (0..self.points.len())
+            .into_par_iter()
+            .step_by(step)
+            .filter_map(|i| {
+                let p = self.points[i];
+                let sn = self.normal(i);
+                // the nearest vertex mostly faces the same way; only where it does not
+                // (a thin part's far side) are the 8 nearest searched
+                let q = [p.x, p.y, p.z];
+                let one = tree.nearest_one::<SquaredEuclidean>(&q);
+                if one.distance > r2 {
+                    return None;
+                }
+                let v = one.item as usize;
+                if normals[v].dot(&sn) >= lim.min_normal_cos {
+                    return Some((v, p, sn));
+                }
+                tree.nearest_n::<SquaredEuclidean>(&q, NonZero::new(8).expect("non-zero"))
+                    .iter()
+                    .filter(|m| m.distance <= r2)
+                    .map(|m| m.item as usize)
+                    .find(|&v| normals[v].dot(&sn) >= lim.min_normal_cos)
+                    .map(|v| (v, p, sn))
+            })
+            .collect()
+    }
+
     /// The plane around cloud point `i` (see [`Patch`]): its CLOUD_K nearest (gathered
     /// as the small ball of two spacings, far cheaper than kiddo's k-nearest search, which
     /// serves only where the ball holds too few), their normals turned to agree with the

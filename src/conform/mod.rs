@@ -165,6 +165,8 @@ pub struct ConformOptions {
     pub coarse_iterations: usize,
     /// weight of scan-to-template pulls in the coarse stage (0 = template-to-scan only)
     pub scan_to_template: f64,
+    /// the same in the elastic fit (default method)
+    pub scan_to_template_fine: f64,
     /// relative residual at which a linear solve stops
     pub solver_tolerance: f64,
     pub solver_max_iterations: usize,
@@ -203,7 +205,8 @@ impl Default for ConformOptions {
             coarse: CoarseStage::Auto,
             coarse_nodes: 300,
             coarse_iterations: 90,
-            scan_to_template: 1.0,
+            scan_to_template: 6.0,
+            scan_to_template_fine: 0.0,
             solver_tolerance: 1e-4,
             solver_max_iterations: 300,
             align: align::AlignOptions::default(),
@@ -284,11 +287,13 @@ impl ConformOptions {
                 return bad(format!("{name} must be {lo} to {hi}, got {v}"));
             }
         }
-        if !(self.scan_to_template >= 0.0 && self.scan_to_template.is_finite()) {
-            return bad(format!(
-                "scan_to_template must be 0 or more, got {}",
-                self.scan_to_template
-            ));
+        for (name, v) in [
+            ("scan_to_template", self.scan_to_template),
+            ("scan_to_template_fine", self.scan_to_template_fine),
+        ] {
+            if !(v >= 0.0 && v.is_finite()) {
+                return bad(format!("{name} must be 0 or more, got {v}"));
+            }
         }
         for (name, v) in [
             ("align.template_up", self.align.template_up),
@@ -720,7 +725,7 @@ fn conform_on_pool(
     // distance to the scan (a template turned round fits with torn, stretched springs).
     let fitted = hypotheses.len();
     let mut best: Option<FittedHypothesis> = None;
-    for (k, (x0, sim)) in hypotheses.into_iter().enumerate() {
+    for (k, Hypothesis { x: x0, sim }) in hypotheses.into_iter().enumerate() {
         let mut x = x0;
         let mut fit = fit::Fit::new(template, &x, &sim, pairs.as_ref(), opts);
         if cancelled() {
@@ -893,28 +898,21 @@ fn global_mapping(
     opts: &ConformOptions,
 ) -> Result<(Vec<Hypothesis>, GlobalReport), ConformError> {
     Ok(match pairs {
-        Some(p) => {
-            let src: Vec<V3> = p
-                .vertex
-                .iter()
-                .map(|&i| template.vertices[i as usize])
-                .collect();
-            let map = rbf::fit(&p.names, &src, &p.target, opts.rbf_smoothing)?;
-            let mapped: Vec<V3> = template.vertices.par_iter().map(|v| map.apply(v)).collect();
-            let sim = fit_similarity(&template.vertices, &mapped, None, true);
-            (
-                vec![(mapped, sim)],
-                GlobalReport::LandmarkRbf {
-                    pairs: p.names.clone(),
-                    unpaired: p.unpaired.clone(),
-                },
-            )
-        }
+        Some(p) => (
+            vec![rbf_hypothesis(template, p, opts.rbf_smoothing)?],
+            GlobalReport::LandmarkRbf {
+                pairs: p.names.clone(),
+                unpaired: p.unpaired.clone(),
+            },
+        ),
         None => {
             let samples = template.surface_samples(ALIGN_TEMPLATE_SAMPLES);
             let (sim, runner_up, rep) = align::auto_align(&samples, surface, &opts.align);
             let placed = |s: &crate::mesh::transform::Similarity| -> Hypothesis {
-                (template.vertices.iter().map(|v| s.apply(v)).collect(), *s)
+                Hypothesis {
+                    x: template.vertices.iter().map(|v| s.apply(v)).collect(),
+                    sim: *s,
+                }
             };
             let mut h = vec![placed(&sim)];
             // the paper's method has no distortion-aware springs to judge by
@@ -930,6 +928,20 @@ fn global_mapping(
 /// the scan samples its ICP refines on.
 const ALIGN_TEMPLATE_SAMPLES: usize = 8000;
 
+/// The template mapped by the landmark RBF of `p`, with the similarity that best explains
+/// the mapping (the springs' frame).
+fn rbf_hypothesis(template: &Mesh, p: &Pairs, smoothing: f64) -> Result<Hypothesis, ConformError> {
+    let src: Vec<V3> = p
+        .vertex
+        .iter()
+        .map(|&i| template.vertices[i as usize])
+        .collect();
+    let map = rbf::fit(&p.names, &src, &p.target, smoothing)?;
+    let mapped: Vec<V3> = template.vertices.par_iter().map(|v| map.apply(v)).collect();
+    let sim = fit_similarity(&template.vertices, &mapped, None, true);
+    Ok(Hypothesis { x: mapped, sim })
+}
+
 /// One hypothesis carried through the elastic fit, with its score (lower is better).
 struct FittedHypothesis<'a> {
     score: f64,
@@ -941,7 +953,10 @@ struct FittedHypothesis<'a> {
 }
 
 /// A starting placement of the template and the similarity behind it.
-type Hypothesis = (Vec<V3>, crate::mesh::transform::Similarity);
+struct Hypothesis {
+    x: Vec<V3>,
+    sim: crate::mesh::transform::Similarity,
+}
 
 /// Every vertex's match (None: missing data), and the vertex normals used.
 fn match_all(
