@@ -3,7 +3,9 @@
 //! truth, the edge-length variation and the time. Run: `cargo bench --bench devset`;
 //! `-- --options FILE` conforms with a `[conform]`-style TOML of options, `-- --only
 //! NAME,...` keeps the cases of those meshes (`captured`, `box` included), `-- --export DIR` writes each case (template,
-//! scan, truth, landmarks) for the peer comparison in `benches/peer/`.
+//! scan, truth, landmarks) for the peer comparison in `benches/peer/`; `-- --set
+//! standard|hard|all` picks the standard cases (default), the harder set of issue 29
+//! (its last column says which part, development or VALIDATION) or both.
 
 use conformd::conform::{ConformOptions, conform};
 use conformd::mesh::io::write_mesh;
