@@ -50,13 +50,14 @@ fn with_landmarks_default_beats_the_paper() {
         ep.flipped,
         p.report.seconds.total,
     );
+    // bounds about 1.25x the figures measured (0.434%, in holes 0.390%; README)
     assert!(
-        ed.mean < 0.0075,
+        ed.mean < 0.0055,
         "default mean correspondence error {:.3}%",
         ed.mean * 100.0
     );
     assert!(
-        ed.mean_in_holes < 0.01,
+        ed.mean_in_holes < 0.005,
         "default error in holes {:.3}%",
         ed.mean_in_holes * 100.0
     );
@@ -93,14 +94,14 @@ fn without_landmarks_turned_and_shifted() {
         e.flipped,
         d.report.seconds.total
     );
-    // within 1.5 times the landmark bound of 0.75%
+    // about 1.25x the figure measured (0.780%)
     assert!(
-        e.mean < 1.5 * 0.0075,
+        e.mean < 0.0098,
         "mean correspondence error {:.3}%",
         e.mean * 100.0
     );
     assert!(
-        e.mean_in_holes < 1.5 * 0.01,
+        e.mean_in_holes < 0.0105,
         "error in holes {:.3}%",
         e.mean_in_holes * 100.0
     );
