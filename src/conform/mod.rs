@@ -204,7 +204,7 @@ impl Default for ConformOptions {
             rest: RestShape::Template,
             coarse: CoarseStage::Auto,
             coarse_nodes: 300,
-            coarse_iterations: 150,
+            coarse_iterations: 90,
             scan_to_template: 6.0,
             scan_to_template_fine: 0.0,
             solver_tolerance: 1e-4,
