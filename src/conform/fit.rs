@@ -225,24 +225,7 @@ impl<'a> Fit<'a> {
 
             // 2. Correspondence.
             let t = Instant::now();
-            let (matches, normals) = match_all(surface, x, self.tris, &limits);
-            // the other direction (default method): scan points pull their nearest
-            // compatible vertex, as in the coarse stage, so that a limb still reaches
-            // data it has not yet come near
-            let n = x.len();
-            let mut pull_weight = vec![0.0; n];
-            let mut pull_target = vec![V3::zeros(); n];
-            if opts.method == Method::Default && opts.scan_to_template_fine > 0.0 {
-                let pulls = surface.pulls(x, &normals, n, &limits);
-                let w =
-                    opts.scan_to_template_fine * (n as f64 / pulls.len().max(1) as f64).min(4.0);
-                for (v, p, sn) in pulls {
-                    let foot = x[v] - sn * sn.dot(&(x[v] - p));
-                    pull_weight[v] += w;
-                    pull_target[v] +=
-                        (foot * (1.0 - opts.point_to_point) + p * opts.point_to_point) * w;
-                }
-            }
+            let (matches, _) = match_all(surface, x, self.tris, &limits);
             times.correspond += t.elapsed().as_secs_f64();
             let summary = super::MatchSummary::of(&matches);
             if let Some(prev) = reports.last_mut() {
@@ -286,8 +269,6 @@ impl<'a> Fit<'a> {
                 ring: &ring,
                 eps,
                 relaxed: self.relaxed.is_some(),
-                pull_weight: &pull_weight,
-                pull_target: &pull_target,
             };
             let solver_iterations = match opts.method {
                 Method::Default => self.arap_solve(x, &x_prev, &step, opts, times),
@@ -342,7 +323,6 @@ impl<'a> Fit<'a> {
             .map(|i| {
                 s.matches[i].map_or(0.0, |m| m.weight) * self.area_weight[i]
                     + self.landmark_weight[i]
-                    + s.pull_weight[i]
                     + anchor
             })
             .collect();
@@ -392,8 +372,7 @@ impl<'a> Fit<'a> {
                 .map(|i| {
                     let mut b = springs[i] * s.eps
                         + x_prev[i] * anchor
-                        + self.landmark_target[i] * self.landmark_weight[i]
-                        + s.pull_target[i];
+                        + self.landmark_target[i] * self.landmark_weight[i];
                     if let Some(m) = &s.matches[i] {
                         // point-to-plane: the foot of the current position on the scan's
                         // tangent plane, blended with the point itself
@@ -508,9 +487,6 @@ struct Step<'s> {
     eps: f64,
     /// the springs have loosened below epsilon_end (see `ConformOptions::relax_epsilon`)
     relaxed: bool,
-    /// #V weights of the scan's pulls on each vertex, and their weighted targets summed
-    pull_weight: &'s [f64],
-    pull_target: &'s [V3],
 }
 
 impl Step<'_> {

@@ -165,8 +165,6 @@ pub struct ConformOptions {
     pub coarse_iterations: usize,
     /// weight of scan-to-template pulls in the coarse stage (0 = template-to-scan only)
     pub scan_to_template: f64,
-    /// the same in the elastic fit (default method)
-    pub scan_to_template_fine: f64,
     /// relative residual at which a linear solve stops
     pub solver_tolerance: f64,
     pub solver_max_iterations: usize,
@@ -206,7 +204,6 @@ impl Default for ConformOptions {
             coarse_nodes: 300,
             coarse_iterations: 90,
             scan_to_template: 6.0,
-            scan_to_template_fine: 0.0,
             solver_tolerance: 1e-4,
             solver_max_iterations: 300,
             align: align::AlignOptions::default(),
@@ -287,13 +284,11 @@ impl ConformOptions {
                 return bad(format!("{name} must be {lo} to {hi}, got {v}"));
             }
         }
-        for (name, v) in [
-            ("scan_to_template", self.scan_to_template),
-            ("scan_to_template_fine", self.scan_to_template_fine),
-        ] {
-            if !(v >= 0.0 && v.is_finite()) {
-                return bad(format!("{name} must be 0 or more, got {v}"));
-            }
+        if !(self.scan_to_template >= 0.0 && self.scan_to_template.is_finite()) {
+            return bad(format!(
+                "scan_to_template must be 0 or more, got {}",
+                self.scan_to_template
+            ));
         }
         for (name, v) in [
             ("align.template_up", self.align.template_up),
