@@ -145,6 +145,14 @@ fn main() {
             "  distance to the scan {:.3}% of the diagonal",
             r.report.mean_distance_relative * 100.0
         );
+        if let conformd::conform::GlobalReport::Automatic(a) = &r.report.global {
+            let turns: Vec<String> = a.limb_turns.iter().map(|t| format!("{t:.0}")).collect();
+            eprintln!(
+                "  limbs: {} found, turned [{}] degrees",
+                a.limbs_found,
+                turns.join(", ")
+            );
+        }
         let own = quality::folded_triangles(&case.template);
         if r.report.folded_triangles > 0 || own > 0 {
             println!(

@@ -21,6 +21,9 @@ pub struct AlignOptions {
     pub icp_iterations: usize,
     /// share of scan samples kept by the trimmed ICP (0.5 - 1)
     pub trim: f64,
+    /// geodesic extremities of the template tried as limbs by the articulation search
+    /// after the rigid alignment (`conform::limbs`); 0 = no search
+    pub limbs: usize,
 }
 
 impl Default for AlignOptions {
@@ -30,6 +33,7 @@ impl Default for AlignOptions {
             scan_up: None,
             icp_iterations: 40,
             trim: 0.85,
+            limbs: 10,
         }
     }
 }
@@ -48,6 +52,10 @@ pub struct AlignReport {
     /// by residual)
     pub fitted: usize,
     pub kept: usize,
+    /// template limbs found for the articulation search, and the turns (degrees) it made
+    /// to the kept hypothesis's limbs
+    pub limbs_found: usize,
+    pub limb_turns: Vec<f64>,
 }
 
 /// Residual ratio under which the runner-up alignment is fitted too: near-symmetric
@@ -153,6 +161,8 @@ pub fn auto_align(
         scale: results[0].1.scale,
         fitted: 1,
         kept: 0,
+        limbs_found: 0,
+        limb_turns: Vec::new(),
     };
     (results[0].1, runner_up, report)
 }

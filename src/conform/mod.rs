@@ -16,6 +16,7 @@ pub mod coarse;
 pub mod correspond;
 pub mod fill;
 mod fit;
+pub mod limbs;
 pub mod rbf;
 pub mod solve;
 
@@ -278,6 +279,7 @@ impl ConformOptions {
                 100_000,
             ),
             ("align.icp_iterations", self.align.icp_iterations, 1, 10_000),
+            ("align.limbs", self.align.limbs, 0, 64),
         ];
         for (name, v, lo, hi) in counts {
             if !(lo..=hi).contains(&v) {
@@ -720,7 +722,7 @@ fn conform_on_pool(
     // distance to the scan (a template turned round fits with torn, stretched springs).
     let fitted = hypotheses.len();
     let mut best: Option<FittedHypothesis> = None;
-    for (k, Hypothesis { x: x0, sim }) in hypotheses.into_iter().enumerate() {
+    for (k, Hypothesis { x: x0, sim, turns }) in hypotheses.into_iter().enumerate() {
         let mut x = x0;
         let mut fit = fit::Fit::new(template, &x, &sim, pairs.as_ref(), opts);
         if cancelled() {
@@ -819,6 +821,7 @@ fn conform_on_pool(
                 reports,
                 converged,
                 index: k,
+                turns,
             });
         }
     }
@@ -828,11 +831,13 @@ fn conform_on_pool(
         mut reports,
         converged,
         index: kept,
+        turns,
         ..
     } = best.expect("at least one hypothesis");
     if let GlobalReport::Automatic(rep) = &mut global_report {
         rep.fitted = fitted;
         rep.kept = kept;
+        rep.limb_turns = turns;
     }
     let diag = fit.diag;
 
@@ -903,17 +908,31 @@ fn global_mapping(
         None => {
             let samples = template.surface_samples(ALIGN_TEMPLATE_SAMPLES);
             let (sim, runner_up, rep) = align::auto_align(&samples, surface, &opts.align);
+            // the paper's method has no distortion-aware springs to judge by
+            let default_method = opts.method == Method::Default;
+            let found = if default_method && opts.align.limbs > 0 {
+                let nb = topology::vertex_neighbours(template.vertices.len(), &template.triangles);
+                limbs::find(&template.vertices, &nb, opts.align.limbs)
+            } else {
+                Vec::new()
+            };
             let placed = |s: &crate::mesh::transform::Similarity| -> Hypothesis {
-                Hypothesis {
-                    x: template.vertices.iter().map(|v| s.apply(v)).collect(),
-                    sim: *s,
-                }
+                let mut x: Vec<V3> = template.vertices.iter().map(|v| s.apply(v)).collect();
+                let turns = limbs::search(
+                    &mut x,
+                    &template.triangles,
+                    &found,
+                    surface,
+                    &limbs::SearchSettings::default(),
+                );
+                Hypothesis { x, sim: *s, turns }
             };
             let mut h = vec![placed(&sim)];
-            // the paper's method has no distortion-aware springs to judge by
-            if let (Some(r), Method::Default) = (runner_up, opts.method) {
+            if let (Some(r), true) = (runner_up, default_method) {
                 h.push(placed(&r));
             }
+            let mut rep = rep;
+            rep.limbs_found = found.len();
             (h, GlobalReport::Automatic(rep))
         }
     })
@@ -934,7 +953,11 @@ fn rbf_hypothesis(template: &Mesh, p: &Pairs, smoothing: f64) -> Result<Hypothes
     let map = rbf::fit(&p.names, &src, &p.target, smoothing)?;
     let mapped: Vec<V3> = template.vertices.par_iter().map(|v| map.apply(v)).collect();
     let sim = fit_similarity(&template.vertices, &mapped, None, true);
-    Ok(Hypothesis { x: mapped, sim })
+    Ok(Hypothesis {
+        x: mapped,
+        sim,
+        turns: Vec::new(),
+    })
 }
 
 /// One hypothesis carried through the elastic fit, with its score (lower is better).
@@ -945,12 +968,15 @@ struct FittedHypothesis<'a> {
     reports: Vec<IterationReport>,
     converged: bool,
     index: usize,
+    turns: Vec<f64>,
 }
 
 /// A starting placement of the template and the similarity behind it.
 struct Hypothesis {
     x: Vec<V3>,
     sim: crate::mesh::transform::Similarity,
+    /// limbs the articulation search turned, degrees
+    turns: Vec<f64>,
 }
 
 /// Every vertex's match (None: missing data), and the vertex normals used.

@@ -1,0 +1,316 @@
+//! Landmark-free articulation search: the template's limbs (geodesic extremities, each
+//! turned about a joint part-way along it), and for each limb the turn that best explains
+//! the scan after the rigid alignment. A rigid start leaves a limb swung far from the
+//! template's rest pose lying on its neighbour (a leg on the other leg), where
+//! closest-point matching keeps it; the search turns it to the scan data nothing covers.
+
+use super::correspond::ScanSurface;
+use crate::mesh::{V3, topology, vertex_normals};
+use kiddo::{ImmutableKdTree, SquaredEuclidean};
+use nalgebra::{Rotation3, Unit};
+use rayon::prelude::*;
+
+/// One limb of the template: the vertices it moves, with weights that fall from 1 at the
+/// tip side to 0 past the joint, and the joint it turns about.
+#[derive(Debug, Clone)]
+pub struct Limb {
+    pub tip: u32,
+    /// the vertices around the joint (their centroid is the joint, wherever the limb
+    /// and the limbs it hangs from have been turned)
+    pub ring: Vec<u32>,
+    /// (vertex, weight in (0, 1])
+    pub weights: Vec<(u32, f64)>,
+}
+
+/// Where the joint sits, as a share of the geodesic path from the tip to the body's
+/// centre, and half the width of the band the turn fades over.
+const JOINT_SHARE: f64 = 0.5;
+const BAND_SHARE: f64 = 0.15;
+/// A cut through the body itself (a back or a rump found as an extremity) is wide: no
+/// joint turns it.
+const THIN_RATIO: f64 = 0.35;
+
+/// The template's limbs: the first `count` geodesic farthest-point samples from the
+/// vertex nearest the centroid whose cut at the joint is thin.
+///
+/// - `v`: #V template vertices; `neighbours`: #V neighbour lists
+pub fn find(v: &[V3], neighbours: &[Vec<u32>], count: usize) -> Vec<Limb> {
+    if v.is_empty() {
+        return Vec::new();
+    }
+    let c = v.iter().sum::<V3>() / v.len() as f64;
+    let centre = (0..v.len())
+        .min_by(|&a, &b| (v[a] - c).norm().total_cmp(&(v[b] - c).norm()))
+        .unwrap_or(0) as u32;
+    let from_centre = topology::edge_distances(v, neighbours, &[centre]).0;
+    let mut nearest = from_centre.clone();
+    let mut limbs = Vec::new();
+    for _ in 0..count {
+        let Some(tip) = (0..v.len())
+            .filter(|&i| nearest[i].is_finite())
+            .max_by(|&a, &b| nearest[a].total_cmp(&nearest[b]))
+        else {
+            break;
+        };
+        if !(nearest[tip] > 0.0) {
+            break;
+        }
+        let length = from_centre[tip];
+        let from_tip = topology::edge_distances(v, neighbours, &[tip as u32]).0;
+        for (n, d) in nearest.iter_mut().zip(&from_tip) {
+            *n = n.min(*d);
+        }
+        let (r, h) = (JOINT_SHARE * length, BAND_SHARE * length);
+        let ring: Vec<usize> = (0..v.len())
+            .filter(|&i| (from_tip[i] - r).abs() < 0.25 * h)
+            .collect();
+        if ring.is_empty() {
+            continue;
+        }
+        let joint = ring.iter().map(|&i| v[i]).sum::<V3>() / ring.len() as f64;
+        let radius = ring.iter().map(|&i| (v[i] - joint).norm()).sum::<f64>() / ring.len() as f64;
+        if radius > THIN_RATIO * r {
+            continue;
+        }
+        let weights: Vec<(u32, f64)> = (0..v.len())
+            .filter_map(|i| {
+                let w = smoothstep((r + h - from_tip[i]) / (2.0 * h));
+                (w > 0.0).then_some((i as u32, w))
+            })
+            .collect();
+        // a limb of more than a third of the body is the body
+        if weights.len() * 3 > v.len() {
+            continue;
+        }
+        limbs.push(Limb {
+            tip: tip as u32,
+            ring: ring.iter().map(|&i| i as u32).collect(),
+            weights,
+        });
+    }
+    limbs
+}
+
+fn smoothstep(t: f64) -> f64 {
+    let t = t.clamp(0.0, 1.0);
+    t * t * (3.0 - 2.0 * t)
+}
+
+/// Settings of the search, relative to the scan's diagonal.
+#[derive(Debug, Clone, Copy)]
+pub struct SearchSettings {
+    /// a scan sample lies on the template when a vertex is this near
+    pub cover: f64,
+    /// directions tried per limb (spread over the sphere)
+    pub directions: usize,
+    /// largest turn tried, degrees
+    pub max_degrees: f64,
+    /// passes over the limbs
+    pub passes: usize,
+}
+
+impl Default for SearchSettings {
+    fn default() -> Self {
+        SearchSettings {
+            cover: 0.03,
+            directions: 48,
+            max_degrees: 150.0,
+            passes: 1,
+        }
+    }
+}
+
+/// Scan samples the search scores with, and the part of them each limb may explain.
+const SCAN_SAMPLES: usize = 3000;
+const LIMB_SAMPLES: usize = 300;
+const REST_SAMPLES: usize = 6000;
+
+/// Turns each limb of `x` (the template placed on the scan; `limbs` found on the
+/// template) to the direction that leaves the fewest scan
+/// samples uncovered and lies on the scan, when that beats leaving it. Returns the turns
+/// made, degrees, one per limb turned.
+///
+/// - `x`: #V vertex positions, changed in place; `tris`: #F triangles
+pub fn search(
+    x: &mut [V3],
+    tris: &[[u32; 3]],
+    limbs: &[Limb],
+    scan: &ScanSurface,
+    s: &SearchSettings,
+) -> Vec<f64> {
+    let n = x.len();
+    let tau = s.cover * scan.diagonal;
+    let step = (scan.points.len() / SCAN_SAMPLES).max(1);
+    let samples: Vec<V3> = scan.points.iter().step_by(step).copied().collect();
+    let m = samples.len() as f64;
+    let dirs = sphere_directions(s.directions);
+    let mut turns = Vec::new();
+    for _ in 0..s.passes {
+        for limb in limbs {
+            let area = vertex_areas(x, tris);
+            let total_area: f64 = area.iter().sum();
+            if !(total_area > 0.0) {
+                return turns;
+            }
+            let normals = vertex_normals(x, tris);
+            let mut moved = vec![false; n];
+            for &(i, w) in &limb.weights {
+                moved[i as usize] = w > 0.0;
+            }
+            // what the rest of the body covers does not depend on the limb's turn
+            let rest: Vec<[f64; 3]> = {
+                let others: Vec<usize> = (0..n).filter(|&i| !moved[i]).collect();
+                let st = (others.len() / REST_SAMPLES).max(1);
+                others
+                    .iter()
+                    .step_by(st)
+                    .map(|&i| [x[i].x, x[i].y, x[i].z])
+                    .collect()
+            };
+            if rest.is_empty() {
+                continue;
+            }
+            let rest_tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&rest);
+            let open: Vec<V3> = samples
+                .par_iter()
+                .filter(|p| {
+                    rest_tree
+                        .nearest_one::<SquaredEuclidean>(&[p.x, p.y, p.z])
+                        .distance
+                        > tau * tau
+                })
+                .copied()
+                .collect();
+            let st = (limb.weights.len() / LIMB_SAMPLES).max(1);
+            let probe: Vec<(u32, f64)> = limb.weights.iter().step_by(st).copied().collect();
+            let limb_area: f64 = limb.weights.iter().map(|&(i, _)| area[i as usize]).sum();
+            // scan samples the limb would hold if the scan saw all of it
+            let limb_samples = m * limb_area / total_area;
+            // a probe vertex stands for its share of the limb, in scan samples
+            let probe_area: f64 = probe.iter().map(|&(i, _)| area[i as usize]).sum();
+            let per_area = if probe_area > 0.0 {
+                m / total_area * limb_area / probe_area
+            } else {
+                0.0
+            };
+            let joint =
+                limb.ring.iter().map(|&i| x[i as usize]).sum::<V3>() / limb.ring.len() as f64;
+            // only open samples within the limb's reach of the joint can change with its
+            // turn; the others count the same for every turn
+            let reach = limb
+                .weights
+                .iter()
+                .map(|&(i, _)| (x[i as usize] - joint).norm())
+                .fold(0.0, f64::max)
+                + tau;
+            let open: Vec<V3> = open
+                .into_iter()
+                .filter(|p| (p - joint).norm() <= reach)
+                .collect();
+            let tip = x[limb.tip as usize];
+            let along = tip - joint;
+            if !(along.norm() > 0.0) {
+                continue;
+            }
+            let along = along.normalize();
+            // the score of a turn: samples left open plus the limb's distance off the scan
+            let score = |rot: &Option<(Unit<V3>, f64)>| -> f64 {
+                let turned = |i: u32, w: f64| -> (V3, V3) {
+                    let (p, nv) = (x[i as usize], normals[i as usize]);
+                    match rot {
+                        Some((axis, angle)) => {
+                            let r = Rotation3::from_axis_angle(axis, angle * w);
+                            (joint + r * (p - joint), r * nv)
+                        }
+                        None => (p, nv),
+                    }
+                };
+                let mut off = 0.0;
+                let mut pts = Vec::with_capacity(probe.len());
+                for &(i, w) in &probe {
+                    let (p, nv) = turned(i, w);
+                    let (k, d) = scan.nearest_point(&p);
+                    let agree = scan.normal(k).dot(&nv) > 0.3;
+                    let dd = if agree { (d / tau).min(1.0) } else { 1.0 };
+                    off += area[i as usize] * dd;
+                    pts.push([p.x, p.y, p.z]);
+                }
+                let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&pts);
+                let still_open = open
+                    .iter()
+                    .filter(|p| {
+                        tree.nearest_one::<SquaredEuclidean>(&[p.x, p.y, p.z])
+                            .distance
+                            > tau * tau
+                    })
+                    .count();
+                still_open as f64 + off * per_area
+            };
+            let here = score(&None);
+            let best_of = |dirs: &[V3]| {
+                dirs.par_iter()
+                    .filter_map(|d| {
+                        let angle = along.dot(d).clamp(-1.0, 1.0).acos();
+                        if angle.to_degrees() > s.max_degrees || angle < 1e-3 {
+                            return None;
+                        }
+                        let axis = Unit::try_new(along.cross(d), 1e-9)?;
+                        Some((score(&Some((axis, angle))), *d))
+                    })
+                    .min_by(|a, b| a.0.total_cmp(&b.0))
+            };
+            // the sphere's lattice first, then a finer one around its best direction
+            let best = best_of(&dirs).and_then(|(sc, d)| {
+                let spread = (4.0 / s.directions as f64).sqrt();
+                let near: Vec<V3> = dirs
+                    .iter()
+                    .map(|e| (d + (e - d * d.dot(e)) * spread).normalize())
+                    .filter(|e| e.dot(&d) > 0.0)
+                    .collect();
+                best_of(&near).filter(|b| b.0 < sc).or(Some((sc, d)))
+            });
+            let best = best.and_then(|(sc, d)| {
+                let angle = along.dot(&d).clamp(-1.0, 1.0).acos();
+                Unit::try_new(along.cross(&d), 1e-9).map(|axis| (sc, Some((axis, angle))))
+            });
+            // a turn must explain clearly more than noise: a tenth of the limb's samples
+            let margin = 0.1 * limb_samples;
+            if let Some((sc, Some((axis, angle)))) = best
+                && sc < here - margin.max(3.0)
+            {
+                for &(i, w) in &limb.weights {
+                    let r = Rotation3::from_axis_angle(&axis, angle * w);
+                    x[i as usize] = joint + r * (x[i as usize] - joint);
+                }
+                turns.push(angle.to_degrees());
+            }
+        }
+    }
+    turns
+}
+
+/// `count` unit directions spread over the sphere (a Fibonacci lattice).
+fn sphere_directions(count: usize) -> Vec<V3> {
+    let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+    (0..count)
+        .map(|k| {
+            let z = 1.0 - 2.0 * (k as f64 + 0.5) / count as f64;
+            let r = (1.0 - z * z).max(0.0).sqrt();
+            let t = golden * k as f64;
+            V3::new(r * t.cos(), r * t.sin(), z)
+        })
+        .collect()
+}
+
+/// A third of each triangle's area on each of its corners.
+fn vertex_areas(v: &[V3], tris: &[[u32; 3]]) -> Vec<f64> {
+    let mut a = vec![0.0; v.len()];
+    for t in tris {
+        let [p, q, r] = t.map(|i| v[i as usize]);
+        let third = (q - p).cross(&(r - p)).norm() / 6.0;
+        for &i in t {
+            a[i as usize] += third;
+        }
+    }
+    a
+}
