@@ -454,7 +454,12 @@ fn the_limb_search_turns_swung_limbs_toward_the_scan() {
     let truth = case.truth.as_ref().unwrap();
     let diag = man.diagonal();
     let error = |x: &[conformd::mesh::V3]| {
-        x.iter().zip(truth).map(|(a, b)| (a - b).norm()).sum::<f64>() / x.len() as f64 / diag
+        x.iter()
+            .zip(truth)
+            .map(|(a, b)| (a - b).norm())
+            .sum::<f64>()
+            / x.len() as f64
+            / diag
     };
     let nb = topology::vertex_neighbours(man.vertices.len(), &man.triangles);
     let found = limbs::find(&man.vertices, &nb, 10);
