@@ -441,14 +441,7 @@ impl<'a> Fit<'a> {
 /// mean share, clamped to 1/20..20 so that a degenerate corner keeps some data and a
 /// huge triangle does not drown its neighbours.
 fn vertex_area_weights(v: &[V3], tris: &[[u32; 3]]) -> Vec<f64> {
-    let mut a = vec![0.0; v.len()];
-    for t in tris {
-        let [p, q, r] = t.map(|i| v[i as usize]);
-        let third = (q - p).cross(&(r - p)).norm() / 6.0;
-        for &i in t {
-            a[i as usize] += third;
-        }
-    }
+    let a = crate::mesh::vertex_areas(v, tris);
     let used = a.iter().filter(|&&x| x > 0.0).count().max(1);
     let mean = a.iter().sum::<f64>() / used as f64;
     if !(mean > 0.0) {

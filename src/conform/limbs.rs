@@ -5,7 +5,7 @@
 //! closest-point matching keeps it; the search turns it to the scan data nothing covers.
 
 use super::correspond::ScanSurface;
-use crate::mesh::{V3, topology, vertex_normals};
+use crate::mesh::{V3, topology, vertex_areas, vertex_normals};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use nalgebra::{Rotation3, Unit};
 use rayon::prelude::*;
@@ -300,17 +300,4 @@ fn sphere_directions(count: usize) -> Vec<V3> {
             V3::new(r * t.cos(), r * t.sin(), z)
         })
         .collect()
-}
-
-/// A third of each triangle's area on each of its corners.
-fn vertex_areas(v: &[V3], tris: &[[u32; 3]]) -> Vec<f64> {
-    let mut a = vec![0.0; v.len()];
-    for t in tris {
-        let [p, q, r] = t.map(|i| v[i as usize]);
-        let third = (q - p).cross(&(r - p)).norm() / 6.0;
-        for &i in t {
-            a[i as usize] += third;
-        }
-    }
-    a
 }

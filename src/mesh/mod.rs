@@ -212,3 +212,17 @@ pub fn vertex_normals(v: &[V3], f: &[[u32; 3]]) -> Vec<V3> {
     }
     n
 }
+
+/// #V areas: a third of each triangle's area on each of its corners (the surface a
+/// vertex stands for).
+pub fn vertex_areas(v: &[V3], tris: &[[u32; 3]]) -> Vec<f64> {
+    let mut a = vec![0.0; v.len()];
+    for t in tris {
+        let [p, q, r] = t.map(|i| v[i as usize]);
+        let third = (q - p).cross(&(r - p)).norm() / 6.0;
+        for &i in t {
+            a[i as usize] += third;
+        }
+    }
+    a
+}
