@@ -127,12 +127,12 @@ fn main() {
     );
     let c = case(11_300, 100_000, false);
     // nine runs: the ratio to the peer rests on this median
-    let ours = bench("11k onto 100k, landmarks", &c, true, 9, Some(1.0));
+    let ours = bench("11k onto 100k, landmarks", &c, true, 9, Some(0.5));
     if std::env::args().any(|a| a == "--peer") {
         peer(&c, ours);
     }
     let c = case(11_300, 100_000, true);
-    bench("11k onto 100k, no landmarks", &c, false, 5, None);
+    bench("11k onto 100k, no landmarks", &c, false, 5, Some(1.5));
     // an outside mesh (uneven, open), posed, onto 100k points
     let cat = devset::with_holes(
         &devset::uneven(&devset::load("cat").expect("dev mesh"), 0.5, 11),
@@ -156,9 +156,9 @@ fn main() {
         return;
     }
     let c = case(50_000, 500_000, false);
-    bench("50k onto 500k, landmarks", &c, true, 3, Some(6.0));
+    bench("50k onto 500k, landmarks", &c, true, 3, Some(2.0));
     let c = case(50_000, 500_000, true);
-    bench("50k onto 500k, no landmarks", &c, false, 3, Some(6.0));
+    bench("50k onto 500k, no landmarks", &c, false, 3, Some(2.0));
     println!("-- growth with template size (scan 100k points, landmarks)");
     for v in [2_500, 5_000, 10_000, 20_000, 40_000] {
         bench(

@@ -56,11 +56,17 @@ pub fn find(v: &[V3], neighbours: &[Vec<u32>], count: usize) -> Vec<Limb> {
             break;
         }
         let length = from_centre[tip];
-        let from_tip = topology::edge_distances(v, neighbours, &[tip as u32]).0;
+        let (r, h) = (JOINT_SHARE * length, BAND_SHARE * length);
+        // the limb needs exact distances out to r + h, the farthest-point update only
+        // where the tip is nearer than every earlier sample (the distances are 1-Lipschitz
+        // along edges, so nothing beyond can get nearer)
+        let from_tip = topology::edge_distances_while(v, neighbours, &[tip as u32], |i, d| {
+            d < nearest[i] || d < r + h
+        })
+        .0;
         for (n, d) in nearest.iter_mut().zip(&from_tip) {
             *n = n.min(*d);
         }
-        let (r, h) = (JOINT_SHARE * length, BAND_SHARE * length);
         let ring: Vec<usize> = (0..v.len())
             .filter(|&i| (from_tip[i] - r).abs() < 0.25 * h)
             .collect();
@@ -124,6 +130,7 @@ impl Default for SearchSettings {
 const SCAN_SAMPLES: usize = 3000;
 const LIMB_SAMPLES: usize = 300;
 const REST_SAMPLES: usize = 6000;
+const SURFACE_SAMPLES: usize = 50_000;
 
 /// Turns each limb of `x` (the template placed on the scan; `limbs` found on the
 /// template) to the direction that leaves the fewest scan
@@ -144,6 +151,16 @@ pub fn search(
     let samples: Vec<V3> = scan.points.iter().step_by(step).copied().collect();
     let m = samples.len() as f64;
     let dirs = sphere_directions(s.directions);
+    // the limbs' distance to the scan is truncated at `tau`: a sparser scan answers it as
+    // well and its tree stays in cache
+    let near_step = (scan.points.len() / SURFACE_SAMPLES).max(1);
+    let near_idx: Vec<usize> = (0..scan.points.len()).step_by(near_step).collect();
+    let near_pts: Vec<[f64; 3]> = near_idx
+        .iter()
+        .map(|&k| [scan.points[k].x, scan.points[k].y, scan.points[k].z])
+        .collect();
+    let near_tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&near_pts);
+    let near_normals: Vec<V3> = near_idx.iter().map(|&k| scan.normal(k)).collect();
     let mut turns = Vec::new();
     for _ in 0..s.passes {
         for limb in limbs {
@@ -173,12 +190,7 @@ pub fn search(
             let rest_tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&rest);
             let open: Vec<V3> = samples
                 .par_iter()
-                .filter(|p| {
-                    rest_tree
-                        .nearest_one::<SquaredEuclidean>(&[p.x, p.y, p.z])
-                        .distance
-                        > tau * tau
-                })
+                .filter(|p| !within(&rest_tree, p, tau))
                 .copied()
                 .collect();
             let st = (limb.weights.len() / LIMB_SAMPLES).max(1);
@@ -229,21 +241,26 @@ pub fn search(
                 let mut pts = Vec::with_capacity(probe.len());
                 for &(i, w) in &probe {
                     let (p, nv) = turned(i, w);
-                    let (k, d) = scan.nearest_point(&p);
-                    let agree = scan.normal(k).dot(&nv) > 0.3;
-                    let dd = if agree { (d / tau).min(1.0) } else { 1.0 };
+                    // past `tau` the distance counts as `tau`: a bounded query is enough
+                    let dd = match near_tree
+                        .nearest_n_within::<SquaredEuclidean>(
+                            &[p.x, p.y, p.z],
+                            tau * tau,
+                            ONE,
+                            false,
+                        )
+                        .first()
+                    {
+                        Some(nb) if near_normals[nb.item as usize].dot(&nv) > 0.3 => {
+                            nb.distance.sqrt() / tau
+                        }
+                        _ => 1.0,
+                    };
                     off += area[i as usize] * dd;
                     pts.push([p.x, p.y, p.z]);
                 }
                 let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&pts);
-                let still_open = open
-                    .iter()
-                    .filter(|p| {
-                        tree.nearest_one::<SquaredEuclidean>(&[p.x, p.y, p.z])
-                            .distance
-                            > tau * tau
-                    })
-                    .count();
+                let still_open = open.iter().filter(|p| !within(&tree, p, tau)).count();
                 still_open as f64 + off * per_area
             };
             let here = score(&None);
@@ -288,6 +305,16 @@ pub fn search(
     }
     turns
 }
+
+/// Whether a point of `tree` lies within `r` of `p` (a bounded query: a far point costs
+/// no more than a near one).
+fn within(tree: &ImmutableKdTree<f64, 3>, p: &V3, r: f64) -> bool {
+    !tree
+        .nearest_n_within::<SquaredEuclidean>(&[p.x, p.y, p.z], r * r, ONE, false)
+        .is_empty()
+}
+
+const ONE: std::num::NonZero<usize> = std::num::NonZero::new(1).unwrap();
 
 /// `count` unit directions spread over the sphere (a Fibonacci lattice).
 fn sphere_directions(count: usize) -> Vec<V3> {

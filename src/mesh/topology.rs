@@ -172,6 +172,18 @@ pub fn edge_distances(
     neighbours: &[Vec<u32>],
     sources: &[u32],
 ) -> (Vec<f64>, Vec<u32>) {
+    edge_distances_while(vertices, neighbours, sources, |_, _| true)
+}
+
+/// `edge_distances`, expanding a vertex reached at distance `d` only while
+/// `expand(vertex, d)`: distances are exact where every vertex before them on the
+/// shortest path was expanded, upper bounds or infinity elsewhere.
+pub fn edge_distances_while(
+    vertices: &[crate::mesh::V3],
+    neighbours: &[Vec<u32>],
+    sources: &[u32],
+    expand: impl Fn(usize, f64) -> bool,
+) -> (Vec<f64>, Vec<u32>) {
     use std::cmp::Ordering;
     #[derive(PartialEq)]
     struct Item(f64, u32);
@@ -197,7 +209,7 @@ pub fn edge_distances(
     }
     while let Some(Item(d, i)) = heap.pop() {
         let i = i as usize;
-        if d > dist[i] {
+        if d > dist[i] || !expand(i, d) {
             continue;
         }
         for &j in &neighbours[i] {
@@ -376,5 +388,22 @@ mod tests {
         let r = report(&Mesh::new(v2, t2));
         assert_eq!(r.non_manifold_vertices, 1);
         assert!(!r.watertight);
+    }
+
+    #[test]
+    fn pruned_distances_give_the_same_farthest_point_update() {
+        let m = crate::synth::icosphere(4);
+        let nb = vertex_neighbours(m.vertices.len(), &m.triangles);
+        let near = edge_distances(&m.vertices, &nb, &[0]).0;
+        let far = (0..near.len())
+            .max_by(|&a, &b| near[a].total_cmp(&near[b]))
+            .unwrap();
+        let full = edge_distances(&m.vertices, &nb, &[far as u32]).0;
+        let (pruned, _) = edge_distances_while(&m.vertices, &nb, &[far as u32], |i, d| d < near[i]);
+        let skipped = pruned.iter().filter(|d| d.is_infinite()).count();
+        assert!(skipped > 0, "the pruning left out nothing");
+        for i in 0..near.len() {
+            assert_eq!(near[i].min(full[i]), near[i].min(pruned[i]), "vertex {i}");
+        }
     }
 }
