@@ -141,9 +141,17 @@ fn main() {
         // no true answer); turned triangles of a posed limb are not folds
         let folds =
             quality::folded_triangles(&Mesh::new(truth.clone(), case.template.triangles.clone()));
+        let st = &r.report.seconds;
         eprintln!(
-            "  distance to the scan {:.3}% of the diagonal",
-            r.report.mean_distance_relative * 100.0
+            "  distance to the scan {:.3}% of the diagonal; seconds: setup {:.2} global {:.2} coarse {:.2} match {:.2} fill {:.2} rot {:.2} solve {:.2}",
+            r.report.mean_distance_relative * 100.0,
+            st.setup,
+            st.global,
+            st.coarse,
+            st.correspond,
+            st.fill,
+            st.rotations,
+            st.solve
         );
         if let conformd::conform::GlobalReport::Automatic(a) = &r.report.global {
             let turns: Vec<String> = a.limb_turns.iter().map(|t| format!("{t:.0}")).collect();

@@ -720,21 +720,27 @@ fn conform_on_pool(
     // 2-4. The elastic fit: coarse stage, then the iterations; for each alignment
     // hypothesis the residuals could not tell apart, kept by the fit's distortion and
     // distance to the scan (a template turned round fits with torn, stretched springs).
+    // On a decimated level the hypotheses are told apart there, and only the kept one
+    // goes on to the full resolution.
     let fitted = hypotheses.len();
-    let mut best: Option<FittedHypothesis> = None;
-    for (k, Hypothesis { x: x0, sim, turns }) in hypotheses.into_iter().enumerate() {
-        let mut x = x0;
-        let mut fit = fit::Fit::new(template, &x, &sim, pairs.as_ref(), opts);
-        if cancelled() {
-            return Err(ConformError::Cancelled);
+    let score_of = |fit: &fit::Fit, x: &[V3], tris: &[[u32; 3]]| -> f64 {
+        if fitted > 1 {
+            let (m, _) = match_all(&surface, x, tris, &fit.limits);
+            let distance = MatchSummary::of(&m).mean_distance / fit.diag;
+            fit.baseline.measure(x).edge_length.std + 10.0 * distance
+        } else {
+            0.0
         }
-        let (reports, converged) = match &level {
-            // the schedule on the decimated template, the last iterations at full
-            // resolution from where it left off
-            Some(level) => {
-                let cpairs = pairs.as_ref().map(|p| p.on_level(level));
-                let mut cx: Vec<V3> = level.kept.iter().map(|&i| x[i as usize]).collect();
-                let mut cfit = fit::Fit::new(&level.mesh, &cx, &sim, cpairs.as_ref(), opts);
+    };
+    let mut best: Option<FittedHypothesis> = None;
+    match &level {
+        Some(level) => {
+            let cpairs = pairs.as_ref().map(|p| p.on_level(level));
+            let mut coarse_best: Option<(f64, usize, Hypothesis, Vec<V3>, fit::Fit)> = None;
+            let mut coarse_reports = Vec::new();
+            for (k, h) in hypotheses.into_iter().enumerate() {
+                let mut cx: Vec<V3> = level.kept.iter().map(|&i| h.x[i as usize]).collect();
+                let mut cfit = fit::Fit::new(&level.mesh, &cx, &h.sim, cpairs.as_ref(), opts);
                 // the decimated level's iterations are cheap: all of them run
                 let coarse_opts = ConformOptions {
                     tolerance: opts.tolerance * 1e-3,
@@ -764,56 +770,44 @@ fn conform_on_pool(
                     r.mean_distance = MatchSummary::of(&m).mean_distance;
                     r.mean_distance_relative = r.mean_distance / cfit.diag;
                 }
-                x = fit.take_over(&cfit, &cx, level);
-                let eps = cfit.final_epsilon(opts);
-                // a change of shape (the fit relaxed) needs the full resolution's detail
-                // (corners, edges) longer than a change of posture
-                let iterations = if eps < opts.epsilon_end {
-                    opts.multires_iterations.max(opts.max_iterations)
-                } else {
-                    opts.multires_iterations
-                };
-                let fine = ConformOptions {
-                    max_iterations: iterations,
-                    epsilon_start: eps,
-                    epsilon_end: eps,
-                    epsilon_steps: 1,
-                    max_distance_start: opts.max_distance,
-                    ..opts.clone()
-                };
-                let done = reports.len();
-                let mut renumbered = |r: &IterationReport| {
-                    let mut r = r.clone();
-                    r.iteration += done;
-                    progress(&r)
-                };
-                let (more, converged) =
-                    fit.iterate(&mut x, &surface, &fine, &mut times, &mut renumbered, cancel);
-                reports.extend(more.into_iter().map(|mut r| {
-                    r.iteration += done;
-                    r
-                }));
-                (reports, converged)
-            }
-            None => {
-                times.coarse += fit.coarse(&mut x, &surface, pairs.is_some(), opts);
-                if cancelled() {
-                    return Err(ConformError::Cancelled);
+                let score = score_of(&cfit, &cx, &level.mesh.triangles);
+                if coarse_best.as_ref().is_none_or(|b| score < b.0) {
+                    coarse_best = Some((score, k, h, cx, cfit));
+                    coarse_reports = reports;
                 }
-                fit.iterate(&mut x, &surface, opts, &mut times, progress, cancel)
             }
-        };
-        if cancelled() {
-            return Err(ConformError::Cancelled);
-        }
-        let score = if fitted > 1 {
-            let (m, _) = match_all(&surface, &x, &template.triangles, &fit.limits);
-            let distance = MatchSummary::of(&m).mean_distance / fit.diag;
-            fit.baseline.measure(&x).edge_length.std + 10.0 * distance
-        } else {
-            0.0
-        };
-        if best.as_ref().is_none_or(|b| score < b.score) {
+            let (score, k, h, cx, cfit) = coarse_best.expect("at least one hypothesis");
+            let mut fit = fit::Fit::new(template, &h.x, &h.sim, pairs.as_ref(), opts);
+            let mut x = fit.take_over(&cfit, &cx, level);
+            let eps = cfit.final_epsilon(opts);
+            // a change of shape (the fit relaxed) needs the full resolution's detail
+            // (corners, edges) longer than a change of posture
+            let iterations = if eps < opts.epsilon_end {
+                opts.multires_iterations.max(opts.max_iterations)
+            } else {
+                opts.multires_iterations
+            };
+            let fine = ConformOptions {
+                max_iterations: iterations,
+                epsilon_start: eps,
+                epsilon_end: eps,
+                epsilon_steps: 1,
+                max_distance_start: opts.max_distance,
+                ..opts.clone()
+            };
+            let mut reports = coarse_reports;
+            let done = reports.len();
+            let mut renumbered = |r: &IterationReport| {
+                let mut r = r.clone();
+                r.iteration += done;
+                progress(&r)
+            };
+            let (more, converged) =
+                fit.iterate(&mut x, &surface, &fine, &mut times, &mut renumbered, cancel);
+            reports.extend(more.into_iter().map(|mut r| {
+                r.iteration += done;
+                r
+            }));
             best = Some(FittedHypothesis {
                 score,
                 x,
@@ -821,9 +815,39 @@ fn conform_on_pool(
                 reports,
                 converged,
                 index: k,
-                turns,
+                turns: h.turns,
             });
         }
+        None => {
+            for (k, Hypothesis { x: x0, sim, turns }) in hypotheses.into_iter().enumerate() {
+                let mut x = x0;
+                let mut fit = fit::Fit::new(template, &x, &sim, pairs.as_ref(), opts);
+                if cancelled() {
+                    return Err(ConformError::Cancelled);
+                }
+                times.coarse += fit.coarse(&mut x, &surface, pairs.is_some(), opts);
+                if cancelled() {
+                    return Err(ConformError::Cancelled);
+                }
+                let (reports, converged) =
+                    fit.iterate(&mut x, &surface, opts, &mut times, progress, cancel);
+                let score = score_of(&fit, &x, &template.triangles);
+                if best.as_ref().is_none_or(|b| score < b.score) {
+                    best = Some(FittedHypothesis {
+                        score,
+                        x,
+                        fit,
+                        reports,
+                        converged,
+                        index: k,
+                        turns,
+                    });
+                }
+            }
+        }
+    }
+    if cancelled() {
+        return Err(ConformError::Cancelled);
     }
     let FittedHypothesis {
         x,
