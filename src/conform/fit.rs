@@ -26,6 +26,8 @@ pub(super) struct Fit<'a> {
     pub landmark_weight: Vec<f64>,
     pub landmark_target: Vec<V3>,
     rest_norms: Vec<f64>,
+    /// the patch each vertex's rotation is fitted over
+    support: solve::RotationSupport,
     /// #V data weights by the surface each vertex stands for (a third of its triangles'
     /// area, against the mean): the data term then weighs a part by its area, not by how
     /// finely it is triangulated, as the cotangent springs do
@@ -93,7 +95,8 @@ impl<'a> Fit<'a> {
                 }
             }
         }
-        let rest_norms = solve::smoothed_rest_norms(&lap, &rest, opts.rotation_rings);
+        let support = solve::RotationSupport::new(&lap, &rest, opts.rotation_rings);
+        let rest_norms = solve::smoothed_rest_norms(&lap, &rest, &support);
         let area_weight = if default_method {
             vertex_area_weights(&rest, &template.triangles)
         } else {
@@ -117,6 +120,7 @@ impl<'a> Fit<'a> {
             landmark_weight,
             landmark_target,
             rest_norms,
+            support,
             rot: vec![UnitQuaternion::identity(); n],
             local_scale: vec![1.0; n],
             relaxed: None,
@@ -347,7 +351,7 @@ impl<'a> Fit<'a> {
                 &self.lap,
                 &self.rest,
                 &xc,
-                opts.rotation_rings,
+                &self.support,
                 &mut self.rot,
                 scale,
             );

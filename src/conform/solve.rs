@@ -224,10 +224,111 @@ pub fn pcg(
     }
 }
 
+/// Over how much of the surface each vertex's rotation is fitted: `rings` rings of
+/// neighbour averaging where triangles are of the typical size, and as many more passes
+/// (at a rate falling with the triangle size) where they are finer, so that the support
+/// is about the same patch of surface whatever the triangulation. With rings counted
+/// alone, a densely triangulated part gets a support a few noise-widths across, and its
+/// small triangles tilt with the scan's noise.
+#[derive(Debug, Clone)]
+pub struct RotationSupport {
+    /// #V averaging rate per pass, in (0, 1]
+    rate: Vec<f64>,
+    passes: usize,
+}
+
+/// The most passes per ring a fine part gets (a part this much finer in area, or more).
+const MAX_PASSES_PER_RING: usize = 8;
+
+impl RotationSupport {
+    /// - `lap`: the springs (their pattern gives the neighbours); `rest`: #V positions
+    pub fn new(lap: &Laplacian, rest: &[V3], rings: usize) -> RotationSupport {
+        let (ip, idx) = (lap.weights.indptr(), lap.weights.indices());
+        let ip = ip.raw_storage();
+        let n = rest.len();
+        let size: Vec<f64> = (0..n)
+            .map(|i| {
+                let k = (ip[i + 1] - ip[i]).max(1) as f64;
+                (ip[i]..ip[i + 1])
+                    .map(|e| (rest[i] - rest[idx[e]]).norm())
+                    .sum::<f64>()
+                    / k
+            })
+            .collect();
+        let mut sorted: Vec<f64> = size.iter().copied().filter(|s| *s > 0.0).collect();
+        sorted.sort_by(f64::total_cmp);
+        let uniform = RotationSupport {
+            rate: vec![1.0; n],
+            passes: rings,
+        };
+        if sorted.is_empty() || rings == 0 {
+            return uniform;
+        }
+        let typical = sorted[sorted.len() / 2];
+        // the finest parts (the first percentile) set the passes; a mesh whose fine
+        // triangles are within twice the typical area keeps the plain rings
+        let fine = sorted[sorted.len() / 100];
+        let finer = (typical / fine).powi(2);
+        if finer <= 2.0 {
+            return uniform;
+        }
+        let per_ring = (finer.ceil() as usize).min(MAX_PASSES_PER_RING);
+        let rate = size
+            .iter()
+            .map(|&s| {
+                if s > 0.0 {
+                    ((typical / s).powi(2) / per_ring as f64).min(1.0)
+                } else {
+                    1.0
+                }
+            })
+            .collect();
+        RotationSupport {
+            rate,
+            passes: rings * per_ring,
+        }
+    }
+
+    /// Averages #V values over each vertex's support (itself counted twice per pass).
+    fn smooth<T>(&self, lap: &Laplacian, values: Vec<T>) -> Vec<T>
+    where
+        T: Copy
+            + Send
+            + Sync
+            + std::ops::Add<Output = T>
+            + std::ops::Mul<f64, Output = T>
+            + std::ops::Div<f64, Output = T>,
+    {
+        let (ip, idx) = (lap.weights.indptr(), lap.weights.indices());
+        let ip = ip.raw_storage();
+        let mut m = values;
+        for _ in 0..self.passes {
+            m = (0..m.len())
+                .into_par_iter()
+                .with_min_len(1024)
+                .map(|i| {
+                    let mut a = m[i] * 2.0;
+                    for k in ip[i]..ip[i + 1] {
+                        a = a + m[idx[k]];
+                    }
+                    let mean = a / (2.0 + (ip[i + 1] - ip[i]) as f64);
+                    let r = self.rate[i];
+                    if r >= 1.0 {
+                        mean
+                    } else {
+                        m[i] * (1.0 - r) + mean * r
+                    }
+                })
+                .collect();
+        }
+        m
+    }
+}
+
 /// Per-vertex best-fit rotations of the rest edges onto the current edges (the local
 /// step of as-rigid-as-possible), smoothed by averaging each vertex's covariance over
-/// `rings` rings of neighbours before extracting the rotation: a lone noisy vertex cannot
-/// twist, and a rotation seen in one place (a landmark, a feature) spreads quickly.
+/// its `support` before extracting the rotation: a lone noisy vertex cannot twist, and a
+/// rotation seen in one place (a landmark, a feature) spreads quickly.
 ///
 /// - `rest`, `cur`: #V positions; `rot`: #V rotations, warm start in and result out
 /// - `scale`: optional #V local scales (out) and their limit, for as-similar-as-possible
@@ -235,7 +336,7 @@ pub fn fit_rotations(
     lap: &Laplacian,
     rest: &[V3],
     cur: &[V3],
-    rings: usize,
+    support: &RotationSupport,
     rot: &mut [UnitQuaternion<f64>],
     scale: Option<(&mut [f64], &[f64], f64)>,
 ) {
@@ -258,25 +359,7 @@ pub fn fit_rotations(
             a
         })
         .collect();
-    // Each ring of smoothing sums a vertex's covariance with its neighbours' (itself
-    // counted twice), widening the support over which one rotation is fitted.
-    let smooth_once = |m: &[Matrix3<f64>]| -> Vec<Matrix3<f64>> {
-        (0..n)
-            .into_par_iter()
-            .with_min_len(1024)
-            .map(|i| {
-                let mut a = m[i] * 2.0;
-                for k in ip[i]..ip[i + 1] {
-                    a += m[idx[k]];
-                }
-                a / (2.0 + (ip[i + 1] - ip[i]) as f64)
-            })
-            .collect()
-    };
-    let mut cov = cov;
-    for _ in 0..rings {
-        cov = smooth_once(&cov);
-    }
+    let cov = support.smooth(lap, cov);
     rot.par_iter_mut()
         .with_min_len(512)
         .enumerate()
@@ -303,10 +386,10 @@ pub fn fit_rotations(
     }
 }
 
-/// Per vertex, `sum_j c_ij |rest_i - rest_j|^2` averaged over `rings` rings as
+/// Per vertex, `sum_j c_ij |rest_i - rest_j|^2` averaged over the `support` as
 /// `fit_rotations` averages covariances: the denominator of the local scale. Depends on
 /// the rest shape only, so it is computed once per conformation.
-pub fn smoothed_rest_norms(lap: &Laplacian, rest: &[V3], rings: usize) -> Vec<f64> {
+pub fn smoothed_rest_norms(lap: &Laplacian, rest: &[V3], support: &RotationSupport) -> Vec<f64> {
     let (ip, idx, w) = (
         lap.weights.indptr(),
         lap.weights.indices(),
@@ -314,22 +397,14 @@ pub fn smoothed_rest_norms(lap: &Laplacian, rest: &[V3], rings: usize) -> Vec<f6
     );
     let ip = ip.raw_storage();
     let n = rest.len();
-    let mut sq: Vec<f64> = (0..n)
+    let sq: Vec<f64> = (0..n)
         .map(|i| {
             (ip[i]..ip[i + 1])
                 .map(|k| w[k] * (rest[i] - rest[idx[k]]).norm_squared())
                 .sum()
         })
         .collect();
-    for _ in 0..rings {
-        sq = (0..n)
-            .map(|i| {
-                (sq[i] * 2.0 + (ip[i]..ip[i + 1]).map(|k| sq[idx[k]]).sum::<f64>())
-                    / (2.0 + (ip[i + 1] - ip[i]) as f64)
-            })
-            .collect();
-    }
-    sq
+    support.smooth(lap, sq)
 }
 
 /// The rotation closest to `a` (maximising `tr(R^T a)`), by the iterative method of
