@@ -47,7 +47,7 @@ fn bench(label: &str, case: &Case, landmarks: bool, repeats: usize, target: Opti
         &case.template.triangles,
     );
     println!(
-        "{label:<34} {:>6} v {:>7} pts  best {:>6.3} s  median {:>6.3} s{}  | global {:.3} coarse {:.3} match {:.3} rot {:.3} solve {:.3} other {:.3} | {} its, error {:.3}%",
+        "{label:<34} {:>6} v {:>7} pts  best {:>6.3} s  median {:>6.3} s{}  | setup {:.3} global {:.3} coarse {:.3} match {:.3} rot {:.3} solve {:.3} other {:.3} | {} its, error {:.3}%",
         case.template.vertices.len(),
         case.scan.vertices.len(),
         times[0],
@@ -60,12 +60,13 @@ fn bench(label: &str, case: &Case, landmarks: bool, repeats: usize, target: Opti
                 "MISSED"
             }
         )),
+        s.setup,
         s.global,
         s.coarse,
         s.correspond,
         s.rotations,
         s.solve,
-        s.total - s.global - s.coarse - s.correspond - s.rotations - s.solve,
+        s.total - s.setup - s.global - s.coarse - s.correspond - s.rotations - s.solve,
         r.report.iterations.len(),
         e.mean * 100.0,
     );

@@ -127,6 +127,9 @@ pub struct ConformOptions {
     /// the last iterations at full resolution; 0, or a template under twice this size,
     /// fits at full resolution throughout
     pub multires_vertices: usize,
+    /// the same without landmarks: the decimated level then carries the posture alone,
+    /// and a finer one follows limbs better (0 = off)
+    pub multires_vertices_no_landmarks: usize,
     /// iterations at full resolution after the decimated template's
     pub multires_iterations: usize,
     /// rings of neighbours over which each vertex's rotation is fitted (default method);
@@ -191,6 +194,7 @@ impl Default for ConformOptions {
             rotation_iterations: 3,
             anderson_history: 3,
             multires_vertices: 2000,
+            multires_vertices_no_landmarks: 4000,
             multires_iterations: 2,
             rotation_rings: 4,
             hole_springs: HoleSprings::Rotated,
@@ -270,6 +274,12 @@ impl ConformOptions {
             ("anderson_history", self.anderson_history, 0, 20),
             ("multires_iterations", self.multires_iterations, 1, 1000),
             ("multires_vertices", self.multires_vertices, 0, 10_000_000),
+            (
+                "multires_vertices_no_landmarks",
+                self.multires_vertices_no_landmarks,
+                0,
+                10_000_000,
+            ),
             ("coarse_nodes", self.coarse_nodes, 4, 20_000),
             ("coarse_iterations", self.coarse_iterations, 1, 10_000),
             (
@@ -540,7 +550,11 @@ fn multires_level(
     pairs: Option<&Pairs>,
     opts: &ConformOptions,
 ) -> Option<Decimated> {
-    let target = opts.multires_vertices;
+    let target = if pairs.is_some() {
+        opts.multires_vertices
+    } else {
+        opts.multires_vertices_no_landmarks
+    };
     if opts.method != Method::Default || target == 0 || template.vertices.len() * 4 < target * 5 {
         return None;
     }
