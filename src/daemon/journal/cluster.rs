@@ -35,7 +35,15 @@ fn server_bin() -> Result<PathBuf, String> {
 
 impl TempPostgres {
     /// Makes and starts a cluster; its database `postgres` and user `conformd` exist.
+    /// The server stops when this value is dropped, and at the latest when this process
+    /// ends (a test's static is never dropped; a test may be killed).
     pub fn start() -> Result<TempPostgres, String> {
+        TempPostgres::start_watched_by(std::process::id())
+    }
+
+    /// [`TempPostgres::start`], the server stopped and its folder removed once process
+    /// `owner` has ended, by a watchdog outside this process.
+    pub fn start_watched_by(owner: u32) -> Result<TempPostgres, String> {
         let bin = server_bin()?;
         let root = running_as_root();
         // the server's user must reach its folder: /tmp, not a private TMPDIR of root's
@@ -90,7 +98,44 @@ impl TempPostgres {
             ],
         )?;
         pg.start_server()?;
+        pg.watch(owner)?;
         Ok(pg)
+    }
+
+    /// A shell loop that waits for `owner` to end, then stops the server at once and
+    /// removes its folder; it ends with them.
+    fn watch(&self, owner: u32) -> Result<(), String> {
+        let quote = |s: &str| format!("'{}'", s.replace('\'', r"'\''"));
+        let pg_ctl = self.bin.join("pg_ctl").display().to_string();
+        let stop = match &self.user {
+            Some(u) => format!("runuser -u {} -- {}", quote(u), quote(&pg_ctl)),
+            None => quote(&pg_ctl),
+        };
+        let script = format!(
+            "while kill -0 {owner} 2>/dev/null; do sleep 0.5; done; {stop} -D {} -m immediate -w stop; rm -rf {}",
+            quote(&self.data()),
+            quote(&self.dir.path().display().to_string())
+        );
+        Command::new("sh")
+            .arg("-c")
+            .arg(script)
+            .stdin(std::process::Stdio::null())
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .map(drop)
+            .map_err(|e| format!("the server's watchdog (sh): {e}"))
+    }
+
+    /// The server's process id while it runs (the first line of `postmaster.pid`).
+    pub fn server_pid(&self) -> Option<u32> {
+        std::fs::read_to_string(self.dir.path().join("data/postmaster.pid"))
+            .ok()?
+            .lines()
+            .next()?
+            .trim()
+            .parse()
+            .ok()
     }
 
     fn data(&self) -> String {

@@ -353,3 +353,30 @@ fn a_dropped_database_link_is_made_again() {
     assert!(j.enqueue("l2", Path::new("/c/l2"), None).unwrap());
     assert_eq!(j.counts().unwrap().queued, 2);
 }
+
+#[test]
+fn a_server_never_dropped_stops_when_its_owner_ends() {
+    // what a test's static server is: never dropped. Owned here by a short-lived child
+    // instead of this test process, so that its end can be watched.
+    let mut owner = std::process::Command::new("sleep")
+        .arg("1")
+        .spawn()
+        .unwrap();
+    let pg = cluster::TempPostgres::start_watched_by(owner.id()).unwrap();
+    let pid = pg.server_pid().expect("the server runs");
+    let folder = pg.folder().to_path_buf();
+    let alive = |pid: u32| Path::new(&format!("/proc/{pid}")).exists();
+    assert!(alive(pid));
+    std::mem::forget(pg);
+    owner.wait().unwrap();
+    let t = std::time::Instant::now();
+    while (alive(pid) || folder.exists()) && t.elapsed().as_secs() < 20 {
+        std::thread::sleep(std::time::Duration::from_millis(100));
+    }
+    assert!(!alive(pid), "server {pid} still runs after its owner ended");
+    assert!(!folder.exists(), "{} left behind", folder.display());
+    eprintln!(
+        "server {pid} stopped {:.1} s after its owner ended",
+        t.elapsed().as_secs_f64()
+    );
+}
