@@ -130,6 +130,7 @@ impl Default for SearchSettings {
 const SCAN_SAMPLES: usize = 3000;
 const LIMB_SAMPLES: usize = 300;
 const REST_SAMPLES: usize = 6000;
+/// scan points the limbs' distance to the scan is looked up among
 const SURFACE_SAMPLES: usize = 50_000;
 
 /// Turns each limb of `x` (the template placed on the scan; `limbs` found on the
@@ -242,18 +243,8 @@ pub fn search(
                 for &(i, w) in &probe {
                     let (p, nv) = turned(i, w);
                     // past `tau` the distance counts as `tau`: a bounded query is enough
-                    let dd = match near_tree
-                        .nearest_n_within::<SquaredEuclidean>(
-                            &[p.x, p.y, p.z],
-                            tau * tau,
-                            ONE,
-                            false,
-                        )
-                        .first()
-                    {
-                        Some(nb) if near_normals[nb.item as usize].dot(&nv) > 0.3 => {
-                            nb.distance.sqrt() / tau
-                        }
+                    let dd = match nearest_within(&near_tree, &p, tau) {
+                        Some((k, d)) if near_normals[k].dot(&nv) > 0.3 => d / tau,
                         _ => 1.0,
                     };
                     off += area[i as usize] * dd;
@@ -306,12 +297,16 @@ pub fn search(
     turns
 }
 
-/// Whether a point of `tree` lies within `r` of `p` (a bounded query: a far point costs
-/// no more than a near one).
+/// The point of `tree` nearest `p` and its distance, if one lies within `r` (a bounded
+/// query: a far point costs no more than a near one).
+fn nearest_within(tree: &ImmutableKdTree<f64, 3>, p: &V3, r: f64) -> Option<(usize, f64)> {
+    tree.nearest_n_within::<SquaredEuclidean>(&[p.x, p.y, p.z], r * r, ONE, false)
+        .first()
+        .map(|nb| (nb.item as usize, nb.distance.sqrt()))
+}
+
 fn within(tree: &ImmutableKdTree<f64, 3>, p: &V3, r: f64) -> bool {
-    !tree
-        .nearest_n_within::<SquaredEuclidean>(&[p.x, p.y, p.z], r * r, ONE, false)
-        .is_empty()
+    nearest_within(tree, p, r).is_some()
 }
 
 const ONE: std::num::NonZero<usize> = std::num::NonZero::new(1).unwrap();

@@ -750,8 +750,16 @@ fn conform_on_pool(
     match &level {
         Some(level) => {
             let cpairs = pairs.as_ref().map(|p| p.on_level(level));
-            let mut coarse_best: Option<(f64, usize, Hypothesis, Vec<V3>, fit::Fit)> = None;
-            let mut coarse_reports = Vec::new();
+            // (score, index, hypothesis, level positions, level fit, level reports)
+            type OnLevel<'l> = (
+                f64,
+                usize,
+                Hypothesis,
+                Vec<V3>,
+                fit::Fit<'l>,
+                Vec<IterationReport>,
+            );
+            let mut coarse_best: Option<OnLevel> = None;
             for (k, h) in hypotheses.into_iter().enumerate() {
                 let mut cx: Vec<V3> = level.kept.iter().map(|&i| h.x[i as usize]).collect();
                 let mut cfit = fit::Fit::new(&level.mesh, &cx, &h.sim, cpairs.as_ref(), opts);
@@ -786,11 +794,11 @@ fn conform_on_pool(
                 }
                 let score = score_of(&cfit, &cx, &level.mesh.triangles);
                 if coarse_best.as_ref().is_none_or(|b| score < b.0) {
-                    coarse_best = Some((score, k, h, cx, cfit));
-                    coarse_reports = reports;
+                    coarse_best = Some((score, k, h, cx, cfit, reports));
                 }
             }
-            let (score, k, h, cx, cfit) = coarse_best.expect("at least one hypothesis");
+            let (score, k, h, cx, cfit, mut reports) =
+                coarse_best.expect("at least one hypothesis");
             let mut fit = fit::Fit::new(template, &h.x, &h.sim, pairs.as_ref(), opts);
             let mut x = fit.take_over(&cfit, &cx, level);
             let eps = cfit.final_epsilon(opts);
@@ -809,7 +817,6 @@ fn conform_on_pool(
                 max_distance_start: opts.max_distance,
                 ..opts.clone()
             };
-            let mut reports = coarse_reports;
             let done = reports.len();
             let mut renumbered = |r: &IterationReport| {
                 let mut r = r.clone();

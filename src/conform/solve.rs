@@ -257,12 +257,12 @@ impl RotationSupport {
             .collect();
         let mut sorted: Vec<f64> = size.iter().copied().filter(|s| *s > 0.0).collect();
         sorted.sort_by(f64::total_cmp);
-        let uniform = RotationSupport {
+        let uniform = || RotationSupport {
             rate: vec![1.0; n],
             passes: rings,
         };
         if sorted.is_empty() || rings == 0 {
-            return uniform;
+            return uniform();
         }
         let typical = sorted[sorted.len() / 2];
         // the finest parts (the first percentile) set the passes; a mesh whose fine
@@ -270,7 +270,7 @@ impl RotationSupport {
         let fine = sorted[sorted.len() / 100];
         let finer = (typical / fine).powi(2);
         if finer <= 2.0 {
-            return uniform;
+            return uniform();
         }
         let per_ring = (finer.ceil() as usize).min(MAX_PASSES_PER_RING);
         let rate = size
@@ -313,11 +313,7 @@ impl RotationSupport {
                     }
                     let mean = a / (2.0 + (ip[i + 1] - ip[i]) as f64);
                     let r = self.rate[i];
-                    if r >= 1.0 {
-                        mean
-                    } else {
-                        m[i] * (1.0 - r) + mean * r
-                    }
+                    m[i] * (1.0 - r) + mean * r
                 })
                 .collect();
         }
