@@ -5,6 +5,7 @@
 
 pub mod conform;
 pub mod daemon;
+pub mod files;
 pub mod jobs;
 pub mod measure;
 pub mod mesh;

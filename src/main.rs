@@ -58,7 +58,7 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
             println!("{} is a valid station file; resolved:", config.display());
             print!(
                 "{}",
-                toml::to_string(&cfg).expect("a station config serialises")
+                toml::to_string(&cfg.shown()).expect("a station config serialises")
             );
         }
         Cmd::Process {
@@ -330,17 +330,19 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
                 block_size,
                 ..SgbmOptions::for_profile(profile)
             };
-            let d = jobs::disparity(&left, &right, &o, &out)?;
+            let truth = truth.as_deref().map(|file| jobs::TruthArgs {
+                file,
+                scale: truth_scale,
+                min_x: truth_from_x,
+            });
+            let (d, score) = jobs::disparity_scored(&left, &right, &o, &out, truth)?;
             println!(
                 "{:.1}% of pixels have a disparity\nwrote {}",
                 d.valid_share() * 100.0,
                 out.display()
             );
-            if let Some(t) = truth {
-                println!(
-                    "{}",
-                    jobs::score_disparity(&d, &t, truth_scale, truth_from_x)?
-                );
+            if let Some(s) = score {
+                println!("{s}");
             }
         }
         Cmd::Cameras => {
@@ -445,15 +447,22 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
                 serde_json::to_string_pretty(&reports).expect("serialises")
             );
             if let Some(p) = csv {
-                conformd::mesh::io::write_atomic(&p, jobs::measurements_csv(&reports).as_bytes())?;
+                conformd::files::write_atomic(&p, jobs::measurements_csv(&reports).as_bytes())?;
                 eprintln!("wrote {}", p.display());
             }
         }
         Cmd::Export { results, out } => {
-            let csv = jobs::export_csv(&results)?;
+            if let Some(p) = &out {
+                conformd::files::refuse_inside(p, &results, "the results folder")?;
+            }
+            let export = jobs::export_csv(&results)?;
+            for (file, why) in &export.skipped {
+                eprintln!("warning: {file} left out: {why}");
+            }
+            let csv = export.csv;
             match out {
                 Some(p) => {
-                    conformd::mesh::io::write_atomic(&p, csv.as_bytes())?;
+                    conformd::files::write_atomic(&p, csv.as_bytes())?;
                     eprintln!("wrote {}", p.display());
                 }
                 None => print!("{csv}"),

@@ -252,8 +252,24 @@ fn degenerate_landmarks_are_rejected_with_a_reason() {
             ("d", -V3::x()),
         ],
     );
-    s[0].name = "other".into();
+    s.remove(0);
     assert!(matches!(run(&t, &s), Err(ConformError::Rbf(_))));
+    // a scan landmark the template does not have is named, not dropped
+    let (t, mut s) = pairs(
+        &sphere,
+        &[
+            ("a", V3::x()),
+            ("b", V3::y()),
+            ("c", V3::z()),
+            ("d", -V3::x()),
+        ],
+    );
+    s[0].name = "other".into();
+    let e = err_of(run(&t, &s));
+    assert!(
+        e.contains("'other'") && e.contains("not among the template's"),
+        "{e}"
+    );
 }
 
 #[test]

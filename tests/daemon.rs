@@ -622,12 +622,44 @@ fn corrupt_sets_fail_with_their_reason_and_a_crashing_job_does_not_stop_the_daem
         .retain(|c| c["id"] != "pod2-left");
     std::fs::write(s.join("manifest.json"), serde_json::to_vec(&v).unwrap()).unwrap();
     drop_set(&sets[1], &staging, "crashes");
+    // sets the daemon will not take: each shown with its reason, logged once
+    drop_set(&sets[0], &staging, "bad name");
+    std::fs::create_dir_all(d.join("data/captures")).unwrap();
+    drop_set(&sets[0], &d.join("data/captures"), "twice");
+    drop_set(&sets[0], &staging, "twice");
     let daemon = Daemon::start(&cfg, port, &[("CONFORMD_TEST_CRASH", "crashes")]);
     for e in std::fs::read_dir(&staging).unwrap() {
         let e = e.unwrap();
         std::fs::rename(e.path(), incoming.join(e.file_name())).unwrap();
     }
-    daemon.wait_settled(7, Duration::from_secs(120));
+    daemon.wait_settled(8, Duration::from_secs(120));
+    // a few rescans (rescan_s = 1) later, still one line each
+    std::thread::sleep(Duration::from_secs(3));
+    let not_taken = daemon.status()["not_taken"].clone();
+    let reason = |entry: &str| {
+        not_taken
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|n| n["entry"] == entry)
+            .map(|n| n["reason"].as_str().unwrap().to_string())
+            .unwrap_or_else(|| panic!("{entry} not in {not_taken}"))
+    };
+    assert!(reason("incoming/bad name").contains("not a plain name"));
+    assert!(reason("incoming/twice").contains("captures/ already has a set of this id"));
+    let log = daemon.log();
+    assert_eq!(
+        log.matches("not taken: not moved: captures/ already has")
+            .count(),
+        1,
+        "{log}"
+    );
+    assert_eq!(log.matches("entry=incoming/bad name").count(), 1, "{log}");
+    let (_, page) = daemon.get("/");
+    assert!(
+        page.contains("id=\"not-taken\"") && page.contains("incoming/twice"),
+        "the page lists them"
+    );
     let mut j = journal(d);
     let mut state = |id: &str| j.get(id).unwrap().unwrap();
     for i in 0..3 {

@@ -453,3 +453,450 @@ fn simulate_on_a_full_disk_leaves_nothing_behind() {
         tree(dir.path())
     );
 }
+
+/// A noise image and the same shifted 4 pixels: a pair with texture and a known match.
+fn textured_pair(dir: &Path) {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+    let left = image::GrayImage::from_fn(96, 64, |_, _| image::Luma([rng.random::<u8>()]));
+    let right = image::GrayImage::from_fn(96, 64, |x, y| *left.get_pixel((x + 4).min(95), y));
+    left.save(dir.join("l.png")).unwrap();
+    right.save(dir.join("r.png")).unwrap();
+}
+
+fn mkfifo(p: &Path) {
+    assert!(Command::new("mkfifo").arg(p).status().unwrap().success());
+}
+
+#[test]
+fn pipes_and_devices_where_a_file_belongs_are_refused_before_a_byte_is_read() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    conformd::mesh::write_mesh(&d.join("s.ply"), &icosphere(2)).unwrap();
+    textured_pair(d);
+    mkfifo(&d.join("pipe.ply"));
+    mkfifo(&d.join("pipe.png"));
+    let pipe = ["not a regular file (a named pipe)"];
+    let device = ["/dev/zero", "not a regular file (a device)"];
+    // a FIFO would block the reader until a writer came
+    refused(d, &["info", "pipe.ply"], &pipe);
+    refused(
+        d,
+        &["disparity", "pipe.png", "r.png", "--out", "d.pfm"],
+        &pipe,
+    );
+    refused(
+        d,
+        &["render", "pipe.ply", "--out", "p.png"],
+        &["pipe.ply", pipe[0]],
+    );
+    // /dev/zero would be read until memory runs out, by every reader
+    let conform = |flag: &'static str| {
+        // scan landmarks pair with the built-in pig's own
+        let template = if flag == "--scan-landmarks" {
+            "pig"
+        } else {
+            "s.ply"
+        };
+        vec![
+            "conform",
+            "--template",
+            template,
+            "--scan",
+            "s.ply",
+            flag,
+            "/dev/zero",
+            "--out",
+            "c.ply",
+        ]
+    };
+    for flag in [
+        "--template-landmarks",
+        "--scan-landmarks",
+        "--template-groups",
+        "--config",
+    ] {
+        let args = conform(flag);
+        refused(d, &args, &device);
+    }
+    // a built-in template's groups are its own: a groups file is not ignored in silence
+    refused(
+        d,
+        &[
+            "conform",
+            "--template",
+            "pig",
+            "--scan",
+            "s.ply",
+            "--template-groups",
+            "g.txt",
+            "--out",
+            "c.ply",
+        ],
+        &["brings its own groups"],
+    );
+    refused(
+        d,
+        &[
+            "disparity",
+            "l.png",
+            "r.png",
+            "--out",
+            "d.pfm",
+            "--num-disparities",
+            "16",
+            "--truth",
+            "/dev/zero",
+        ],
+        &device,
+    );
+    refused(
+        d,
+        &["model", "score", "--model", "/dev/zero", "s.ply"],
+        &device,
+    );
+}
+
+#[test]
+fn a_chessboard_that_cannot_be_in_the_images_is_refused_before_opencv_allocates_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let views = d.join("views");
+    std::fs::create_dir(&views).unwrap();
+    let grey = image::GrayImage::from_pixel(320, 240, image::Luma([90]));
+    for k in 0..4 {
+        grey.save(views.join(format!("left{k:02}.png"))).unwrap();
+        grey.save(views.join(format!("right{k:02}.png"))).unwrap();
+    }
+    refused(
+        d,
+        &[
+            "calibrate",
+            "--images",
+            "views",
+            "--board",
+            "100000x100000",
+            "--square",
+            "1",
+            "--out",
+            "pod.yml",
+        ],
+        &["100000x100000", "cannot be found in 320x240 images"],
+    );
+    refused(
+        d,
+        &[
+            "calibrate",
+            "--images",
+            "views",
+            "--board",
+            "9x6",
+            "--square",
+            "0",
+            "--out",
+            "pod.yml",
+        ],
+        &["square size must be a positive length"],
+    );
+}
+
+#[test]
+fn figures_computed_from_nothing_are_refused_not_printed() {
+    use conformd::measure::Definitions;
+    use conformd::stereo::truth::{parse_truth, score};
+    // a mesh beyond any real coordinate: not rendered blank, not described with nulls
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let mut far = icosphere(1);
+    for v in &mut far.vertices {
+        *v *= 1e300;
+    }
+    conformd::mesh::write_mesh(&d.join("far.ply"), &far).unwrap();
+    let words = ["far.ply", "lies beyond 1e9 from the origin"];
+    refused(d, &["render", "far.ply", "--out", "far.png"], &words);
+    refused(d, &["info", "far.ply"], &words);
+
+    // a girth plane through the sphere's top vertex, square to the axis through it,
+    // touches it at one point: no girth of 0 (positions name their nearest vertices)
+    let b = icosphere(2);
+    let top = b.vertices[0];
+    let at = |p: V3| format!("[{}, {}, {}]", p.x, p.y, p.z);
+    let measure = |text: &str| {
+        Definitions::parse(text, "defs.toml")
+            .unwrap()
+            .resolve(&b, &[])
+            .unwrap()
+            .measure(&b)
+    };
+    let axis = format!("[{}, {}]", at(-top), at(top));
+    let e = measure(&format!(
+        "[[measurement]]\nname = \"g\"\nkind = \"girth\"\nat = {}\naxis = {axis}\n",
+        at(top)
+    ))
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.contains("measurement 'g'") && e.contains("only touches the mesh"),
+        "{e}"
+    );
+    // a width whose direction across runs along its axis
+    let e = measure(&format!(
+        "[[measurement]]\nname = \"w\"\nkind = \"width\"\nat = [0.0, 0.0, 0.0]\naxis = {axis}\nacross = {axis}\n"
+    ))
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.contains("measurement 'w'") && e.contains("along the axis"),
+        "{e}"
+    );
+    // across the section it measures the sphere's breadth
+    let side = top.cross(&V3::new(0.3, 0.5, 0.7)).normalize();
+    let ok = measure(&format!(
+        "[[measurement]]\nname = \"w\"\nkind = \"width\"\nat = {}\naxis = {axis}\nacross = [{}, {}]\n",
+        at(side),
+        at(-side),
+        at(side)
+    ))
+    .unwrap();
+    assert!((ok[0].value - 2.0).abs() < 0.1, "{}", ok[0].value);
+
+    // a PFM whose scale gives no byte order
+    for scale in ["nan", "0"] {
+        let mut pfm = format!("Pf\n2 2\n{scale}\n").into_bytes();
+        pfm.extend(std::iter::repeat_n(0u8, 16));
+        let e = parse_truth(Path::new("t.pfm"), &pfm, None).unwrap_err();
+        assert!(e.contains("t.pfm") && e.contains("PFM scale"), "{e}");
+    }
+    // a truth with no known pixel, or none from the first scored column on
+    let disparity = conformd::stereo::disparity::Disparity {
+        width: 4,
+        height: 2,
+        values: vec![3.0; 8],
+    };
+    let mut unknown = b"Pf\n4 2\n-1\n".to_vec();
+    for _ in 0..8 {
+        unknown.extend(f32::INFINITY.to_le_bytes());
+    }
+    let t = parse_truth(Path::new("t.pfm"), &unknown, None).unwrap();
+    let e = score(&disparity, &t, 0).unwrap_err();
+    assert!(e.contains("no known pixels"), "{e}");
+    let mut known = b"Pf\n4 2\n-1\n".to_vec();
+    for _ in 0..8 {
+        known.extend(3.0f32.to_le_bytes());
+    }
+    let t = parse_truth(Path::new("t.pfm"), &known, None).unwrap();
+    assert_eq!(score(&disparity, &t, 0).unwrap().bad1, 0.0);
+    let e = score(&disparity, &t, 9).unwrap_err();
+    assert!(
+        e.contains("from column 9 on") && e.contains("4 wide"),
+        "{e}"
+    );
+}
+
+#[test]
+fn quiet_wrong_answers_are_refused() {
+    // a scan of points on one line has no surface to fit
+    let sphere = icosphere(2);
+    let line = Mesh::new(
+        (0..200)
+            .map(|i| V3::new(i as f64 * 0.01, 0.0, 0.0))
+            .collect(),
+        vec![],
+    );
+    let e = conform_err(&sphere, &line, &ConformOptions::default());
+    assert!(e.contains("on one line"), "{e}");
+    // a scan landmark the template lacks is a misspelling, not a point to drop
+    use conformd::mesh::{Landmark, LandmarkPos};
+    let tl = vec![
+        Landmark {
+            name: "snout".into(),
+            pos: LandmarkPos::Vertex(0),
+        },
+        Landmark {
+            name: "tail".into(),
+            pos: LandmarkPos::Vertex(5),
+        },
+    ];
+    let sl = vec![Landmark {
+        name: "snuot".into(),
+        pos: LandmarkPos::Point(sphere.vertices[0]),
+    }];
+    let e = match conform(
+        &sphere,
+        &sphere,
+        Some((&tl, &sl)),
+        &ConformOptions::default(),
+        &mut |_| {},
+    ) {
+        Err(e) => e.to_string(),
+        Ok(_) => panic!("conformed with an unknown landmark"),
+    };
+    assert!(e.contains("'snuot'") && e.contains("snout, tail"), "{e}");
+    // a simulation at NaN noise
+    let dir = tempfile::tempdir().unwrap();
+    let rig = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/rig.example.toml");
+    refused(
+        dir.path(),
+        &[
+            "simulate",
+            "--rig",
+            rig.to_str().unwrap(),
+            "--subject",
+            "pig",
+            "--noise",
+            "nan",
+            "--out",
+            "sim",
+        ],
+        &["--noise NaN", "0 to 100"],
+    );
+}
+
+#[test]
+fn results_are_never_written_into_what_they_are_made_from() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let results = d.join("results");
+    std::fs::create_dir_all(results.join("c1")).unwrap();
+    std::fs::write(results.join("c1/report.json"), "{\"capture\": \"c1\"}").unwrap();
+    refused(
+        d,
+        &[
+            "export",
+            "--results",
+            "results",
+            "--out",
+            "results/c1/report.json",
+        ],
+        &["lies inside the results folder"],
+    );
+    assert_eq!(
+        std::fs::read_to_string(results.join("c1/report.json")).unwrap(),
+        "{\"capture\": \"c1\"}"
+    );
+    std::fs::create_dir(d.join("set")).unwrap();
+    refused(
+        d,
+        &[
+            "process",
+            "set",
+            "--config",
+            "station.toml",
+            "--out",
+            "set/out",
+        ],
+        &["lies inside the capture set"],
+    );
+    // a corrupt report is named, not skipped in silence; a formula is not run
+    std::fs::create_dir_all(results.join("c2")).unwrap();
+    std::fs::write(results.join("c2/report.json"), "{trunc").unwrap();
+    std::fs::create_dir_all(results.join("c3")).unwrap();
+    std::fs::write(
+        results.join("c3/report.json"),
+        "{\"capture\": \"c3\", \"subject\": \"=HYPERLINK(1)\"}",
+    )
+    .unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_conformd"))
+        .args(["export", "--results", "results"])
+        .current_dir(d)
+        .output()
+        .unwrap();
+    let (csv, err) = (
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr),
+    );
+    assert!(out.status.success(), "{err}");
+    assert!(
+        err.contains("c2/report.json") && err.contains("not JSON"),
+        "{err}"
+    );
+    assert_eq!(csv.lines().count(), 3, "{csv}");
+    assert!(csv.contains("c3,'=HYPERLINK(1)"), "{csv}");
+}
+
+#[test]
+fn every_folder_entry_the_daemon_will_not_take_is_named_with_its_reason() {
+    use conformd::daemon::sets::{SETTLE, scan_folder};
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path();
+    let set = |name: &str| {
+        let p = root.join(name);
+        std::fs::create_dir_all(&p).unwrap();
+        std::fs::write(
+            p.join("manifest.json"),
+            r#"{"cameras": [{"file": "a.png"}, {"file": "b.png"}]}"#,
+        )
+        .unwrap();
+        std::fs::write(p.join("a.png"), "a").unwrap();
+        std::fs::write(p.join("b.png"), "b").unwrap();
+        p
+    };
+    set("good");
+    set("bad\nname");
+    set("ünïcode");
+    set(&"x".repeat(200));
+    set(".hidden");
+    set(".young"); // a writer's hidden name while it writes: passed over in silence
+    set(".ours.partial"); // the daemon's own, however old
+    for old in [".hidden", ".ours.partial"] {
+        let p = root.join(old);
+        assert!(
+            Command::new("touch")
+                .args(["-d", "1 hour ago"])
+                .arg(&p)
+                .status()
+                .unwrap()
+                .success()
+        );
+    }
+    std::os::unix::fs::symlink(root.join("good"), root.join("linked")).unwrap();
+    std::fs::write(root.join("stray.txt"), "a file").unwrap();
+    let pipe = set("piped");
+    std::fs::remove_file(pipe.join("manifest.json")).unwrap();
+    mkfifo(&pipe.join("manifest.json"));
+    let linked_manifest = set("linkedmanifest");
+    std::fs::remove_file(linked_manifest.join("manifest.json")).unwrap();
+    std::os::unix::fs::symlink(
+        root.join("good/manifest.json"),
+        linked_manifest.join("manifest.json"),
+    )
+    .unwrap();
+    let t = Instant::now();
+    let found = scan_folder(root, None, |_| false);
+    assert!(t.elapsed() < Duration::from_secs(2), "{:?}", t.elapsed());
+    let ids: Vec<&str> = found.sets.iter().map(|(n, _)| n.as_str()).collect();
+    assert_eq!(ids, ["good"]);
+    let why = |name: &str| {
+        found
+            .refused
+            .iter()
+            .find(|(n, _)| n == name)
+            .map(|(_, w)| w.clone())
+            .unwrap_or_else(|| panic!("{name} not reported: {:?}", found.refused))
+    };
+    assert!(why("bad\\nname").contains("not a plain name"));
+    assert!(why("ünïcode").contains("not a plain name"));
+    assert!(why(&"x".repeat(200)).contains("1 to 128 characters"));
+    assert!(why(".hidden").contains("not starting with '.'"));
+    assert!(why("linked").contains("symbolic link"));
+    assert!(why("stray.txt").contains("not a capture set folder"));
+    assert!(why("piped").contains("manifest.json is a named pipe"));
+    assert!(why("linkedmanifest").contains("manifest.json is a symbolic link"));
+    assert_eq!(found.refused.len(), 8, "{:?}", found.refused);
+    // a set still being written (its files changed within the settle time) waits
+    let fresh = tempfile::tempdir().unwrap();
+    let p = fresh.path().join("growing");
+    std::fs::create_dir(&p).unwrap();
+    std::fs::write(
+        p.join("manifest.json"),
+        r#"{"cameras": [{"file": "a.png"}]}"#,
+    )
+    .unwrap();
+    std::fs::write(p.join("a.png"), "part").unwrap();
+    let waiting = scan_folder(fresh.path(), Some(SETTLE), |_| false);
+    assert!(waiting.sets.is_empty() && waiting.settling, "{waiting:?}");
+    std::thread::sleep(SETTLE + Duration::from_millis(200));
+    let settled = scan_folder(fresh.path(), Some(SETTLE), |_| false);
+    assert_eq!(settled.sets.len(), 1, "{settled:?}");
+    assert!(!settled.settling);
+}

@@ -422,7 +422,7 @@ fn weights_are_recovered_from_measurements_with_cross_validated_error_under_4_pe
         samples[0].2
     );
     // the export: a row per result, a column per measurement
-    let csv = conformd::jobs::export_csv(&results).unwrap();
+    let csv = conformd::jobs::export_csv(&results).unwrap().csv;
     let lines: Vec<&str> = csv.lines().collect();
     assert_eq!(lines.len(), 41);
     assert!(lines[0].contains(",volume,") && lines[1].starts_with("cap-00,tag-0,crate-t,"));

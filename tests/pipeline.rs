@@ -354,6 +354,50 @@ fn bad_capture_sets_fail_at_their_stage_naming_the_file() {
         &["not a plain name"],
     );
 
+    // a named pipe where an image belongs: refused before it is opened (opening it
+    // would block until a writer came), the capture's fault, not retried
+    let s = case("fifo");
+    std::fs::remove_file(s.join("pod2-right.png")).unwrap();
+    assert!(
+        Command::new("mkfifo")
+            .arg(s.join("pod2-right.png"))
+            .status()
+            .unwrap()
+            .success()
+    );
+    let t = std::time::Instant::now();
+    check(
+        &failure(&mut pipeline, &s),
+        Stage::Read,
+        true,
+        &["pod2-right.png", "not a regular file (a named pipe)"],
+    );
+    assert!(t.elapsed().as_secs_f64() < 5.0, "{:?}", t.elapsed());
+
+    // two cameras of a pod reading one file through a link
+    let s = case("linked");
+    std::fs::remove_file(s.join("pod1-right.png")).unwrap();
+    std::os::unix::fs::symlink("pod1-left.png", s.join("pod1-right.png")).unwrap();
+    check(
+        &failure(&mut pipeline, &s),
+        Stage::Read,
+        true,
+        &["pod1-right.png", "camera pod1-left's image too"],
+    );
+
+    // a subject that a spreadsheet would run, or that is a path
+    for subject in ["=HYPERLINK(\"http://x\")", "../x", "a\nb"] {
+        let s = case("subject");
+        edit_manifest(&s, |v| v["subject"] = subject.into());
+        check(
+            &failure(&mut pipeline, &s),
+            Stage::Read,
+            true,
+            &["subject", "not a plain name"],
+        );
+        std::fs::remove_dir_all(d.join("subject")).unwrap();
+    }
+
     // images without texture: nothing to match, an empty scan
     let s = case("blank");
     for c in ["pod1-left", "pod1-right", "pod2-left", "pod2-right"] {
@@ -428,6 +472,88 @@ fn every_mistake_in_a_station_file_is_reported_with_its_line() {
     std::fs::write(&p, "[capture]\n[[cameras]]\nid = \"../../x\"\npod = \"p\"\nside = \"left\"\nsynthetic = true\n").unwrap();
     let e = StationConfig::load(&p).unwrap_err().to_string();
     assert!(e.contains("not a plain name"), "{e}");
+}
+
+/// `conformd check` on a station file: (exit success, stdout, stderr).
+fn check_cmd(file: &Path) -> (bool, String, String) {
+    let out = Command::new(BIN).arg("check").arg(file).output().unwrap();
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stdout).into(),
+        String::from_utf8_lossy(&out.stderr).into(),
+    )
+}
+
+#[test]
+fn check_loads_every_file_the_station_file_names_and_checks_what_the_types_cannot() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let refused = |extra: &str, words: &[&str]| {
+        let p = station_file(d, extra);
+        let (ok, _, err) = check_cmd(&p);
+        assert!(!ok, "{extra}: check passed");
+        for w in words {
+            assert!(err.contains(w), "{extra}: '{w}' not in {err}");
+        }
+    };
+    // a model file that is a device, a folder or not a model: what every job would load
+    refused(
+        "[model]\nfile = \"/dev/zero\"\n",
+        &["/dev/zero", "not a regular file (a device)"],
+    );
+    std::fs::create_dir(d.join("model-dir")).unwrap();
+    refused(
+        "[model]\nfile = \"model-dir\"\n",
+        &["model-dir", "a folder"],
+    );
+    std::fs::write(d.join("model.json"), "{}").unwrap();
+    refused("[model]\nfile = \"model.json\"\n", &["model.json"]);
+    // measurement definitions and a template mesh that are not files
+    refused(
+        "[measure]\ndefinitions = \"/dev/null/x.toml\"\n",
+        &["x.toml"],
+    );
+    // values the types let through
+    refused(
+        "[capture]\nmax_skew_ms = nan\n[[cameras]]\nid = \"c\"\npod = \"p\"\nside = \"left\"\nsynthetic = true\n",
+        &["max_skew_ms = NaN", "0 to 10000"],
+    );
+    refused(
+        "[daemon]\nlisten = \"0.0.0.0:8470\"\ntoken = \"                \"\n",
+        &["token of 16 or more characters other than spaces"],
+    );
+    refused(
+        "[journal]\nurl = \"postgres://u:secret@host:notaport/db\"\n",
+        &["[journal]", "not a PostgreSQL connection URL"],
+    );
+    let p = station_file(
+        d,
+        "[journal]\nurl = \"postgres://u:secret@host:notaport/db\"\n",
+    );
+    let (_, out, err) = check_cmd(&p);
+    assert!(
+        !out.contains("secret") && !err.contains("secret"),
+        "{out}{err}"
+    );
+    // a valid file is printed without its secrets
+    let p = station_file(
+        d,
+        "[journal]\nurl = \"postgres://u:secret@127.0.0.1/db\"\n[daemon]\ntoken = \"0123456789abcdef-token\"\n",
+    );
+    let (ok, out, err) = check_cmd(&p);
+    assert!(ok, "{err}");
+    assert!(
+        !out.contains("secret") && !out.contains("0123456789abcdef-token"),
+        "{out}"
+    );
+    assert!(out.contains("u:***@127.0.0.1"), "{out}");
+    // an empty file, and data = ""
+    std::fs::write(d.join("empty.toml"), "").unwrap();
+    let (ok, _, err) = check_cmd(&d.join("empty.toml"));
+    assert!(!ok && err.contains("the station file is empty"), "{err}");
+    std::fs::write(d.join("nodata.toml"), "[station]\ndata = \"\"\n").unwrap();
+    let (ok, _, err) = check_cmd(&d.join("nodata.toml"));
+    assert!(!ok && err.contains("data = \"\" names no folder"), "{err}");
 }
 
 #[test]

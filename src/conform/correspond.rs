@@ -82,27 +82,32 @@ pub enum ScanError {
 
 const CLOUD_K: usize = 8;
 
-/// Largest coordinate accepted (kilometres in millimetres); beyond it squared distances
-/// lose all precision and the search structures misbehave.
-pub const MAX_COORDINATE: f64 = 1e9;
+pub use crate::mesh::MAX_COORDINATE;
 
 /// A point set fit for geometry: coordinates within [`MAX_COORDINATE`], and an extent
 /// (not all points in one place). `what` names it in the sentence.
 pub fn check_extent(m: &Mesh, what: &str) -> Result<(), String> {
-    if let Some((i, p)) = m
-        .vertices
-        .iter()
-        .enumerate()
-        .find(|(_, p)| p.iter().any(|c| c.abs() > MAX_COORDINATE))
-    {
-        return Err(format!(
-            "{what}: vertex {i} at ({:e}, {:e}, {:e}) lies beyond {MAX_COORDINATE:e} from the origin",
-            p.x, p.y, p.z
-        ));
-    }
+    m.check_coordinates(what)?;
     if !(m.diagonal() > 0.0) {
         return Err(format!(
             "{what}: all {} points lie in one place (no extent)",
+            m.vertices.len()
+        ));
+    }
+    // spread across the main direction: points on a line give no surface to fit
+    let n = m.vertices.len() as f64;
+    let mean = m.vertices.iter().sum::<V3>() / n;
+    let cov = m
+        .vertices
+        .iter()
+        .map(|p| (p - mean) * (p - mean).transpose())
+        .sum::<nalgebra::Matrix3<f64>>()
+        / n;
+    let mut ev: Vec<f64> = cov.symmetric_eigenvalues().iter().copied().collect();
+    ev.sort_by(|a, b| b.total_cmp(a));
+    if !(ev[1] > 1e-8 * ev[0]) {
+        return Err(format!(
+            "{what}: all {} points lie on one line (no surface)",
             m.vertices.len()
         ));
     }

@@ -610,11 +610,26 @@ fn pair_landmarks(
         p.vertex.push(v);
         p.target.push(target);
     }
-    p.unpaired.extend(
-        sl.iter()
-            .filter(|s| !tl.iter().any(|t| t.name == s.name))
-            .map(|s| s.name.clone()),
-    );
+    // a scan landmark the template lacks is a misspelt or foreign name: dropping it
+    // would fit without the point its user placed
+    let unknown: Vec<&str> = sl
+        .iter()
+        .filter(|s| !tl.iter().any(|t| t.name == s.name))
+        .map(|s| s.name.as_str())
+        .collect();
+    if !unknown.is_empty() {
+        let mut known: Vec<&str> = tl.iter().map(|t| t.name.as_str()).collect();
+        known.truncate(30);
+        return Err(ConformError::Landmarks(format!(
+            "scan landmark(s) {} are not among the template's ({})",
+            unknown
+                .iter()
+                .map(|n| format!("'{}'", n.escape_default()))
+                .collect::<Vec<_>>()
+                .join(", "),
+            known.join(", ")
+        )));
+    }
     Ok(p)
 }
 

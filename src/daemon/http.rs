@@ -134,6 +134,15 @@ struct Status {
     model_exists: bool,
     model_rebuilding: bool,
     model_error: Option<String>,
+    /// entries of `captures/` and `incoming/` the station will not take, with why
+    not_taken: Vec<NotTaken>,
+}
+
+#[derive(serde::Serialize)]
+struct NotTaken {
+    /// `captures/<name>` or `incoming/<name>`
+    entry: String,
+    reason: String,
 }
 
 fn status_of(shared: &Shared) -> Api<Status> {
@@ -183,6 +192,18 @@ fn status_of(shared: &Shared) -> Api<Status> {
         model: model.map(|m| m.display().to_string()),
         model_rebuilding: shared.model_busy.load(std::sync::atomic::Ordering::SeqCst),
         model_error: shared.model_error.lock().ok().and_then(|e| e.clone()),
+        not_taken: shared
+            .refused
+            .lock()
+            .map(|r| {
+                r.iter()
+                    .map(|(entry, reason)| NotTaken {
+                        entry: entry.clone(),
+                        reason: reason.clone(),
+                    })
+                    .collect()
+            })
+            .unwrap_or_default(),
     })
 }
 
@@ -226,7 +247,10 @@ struct CaptureDetail {
 fn detail(shared: &Shared, id: &str) -> Api<CaptureDetail> {
     let job = job_or_404(shared, id)?;
     let read_json = |p: std::path::PathBuf| -> Option<serde_json::Value> {
-        serde_json::from_slice(&std::fs::read(p).ok()?).ok()
+        serde_json::from_slice(
+            &crate::files::read_limited(&p, crate::files::MAX_REPORT_BYTES).ok()?,
+        )
+        .ok()
     };
     let manifest = read_json(job.dir.join("manifest.json"));
     let report = job
@@ -271,9 +295,13 @@ async fn capture_file(
             format!("capture '{id}' has no result yet"),
         )
     })?;
-    let bytes = tokio::fs::read(dir.join(&file))
-        .await
-        .map_err(|e| ApiError(StatusCode::NOT_FOUND, format!("{file}: {e}")))?;
+    let path = dir.join(&file);
+    let bytes = tokio::task::spawn_blocking(move || {
+        crate::files::read_limited(&path, crate::mesh::io::MAX_MESH_BYTES)
+    })
+    .await
+    .map_err(|e| ApiError(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?
+    .map_err(|e| ApiError(StatusCode::NOT_FOUND, format!("{file}: {e}")))?;
     Ok(([(header::CONTENT_TYPE, kind)], bytes).into_response())
 }
 
@@ -493,6 +521,18 @@ async fn page(Ctx(shared): Ctx<Arc<Shared>>) -> Api<Html<String>> {
             jr.waiting_handover.len()
         );
     }
+    if !st.not_taken.is_empty() {
+        h.push_str("<h2>Not taken</h2><table id=\"not-taken\"><tr><th>entry</th><th>why it is not processed</th></tr>");
+        for n in &st.not_taken {
+            let _ = write!(
+                h,
+                "<tr><td>{}</td><td>{}</td></tr>",
+                esc(&n.entry),
+                esc(&n.reason)
+            );
+        }
+        h.push_str("</table>");
+    }
     if !st.worker_list.is_empty() {
         h.push_str("<h2>Workers</h2><table id=\"workers\"><tr><th>worker</th><th>host</th><th>current job</th><th>jobs done</th><th>last heartbeat</th></tr>");
         let now = super::journal::now();
@@ -695,7 +735,10 @@ fn subject_results(shared: &Shared, tag: &str) -> Api<Vec<(Job, serde_json::Valu
         .into_iter()
         .filter_map(|j| {
             let r = j.result.as_ref()?.join("report.json");
-            let v = serde_json::from_slice(&std::fs::read(r).ok()?).ok()?;
+            let v = serde_json::from_slice(
+                &crate::files::read_limited(&r, crate::files::MAX_REPORT_BYTES).ok()?,
+            )
+            .ok()?;
             Some((j, v))
         })
         .collect())
@@ -773,10 +816,14 @@ async fn subject_plot(Ctx(shared): Ctx<Arc<Shared>>, Path(tag): Path<String>) ->
 
 async fn export(Ctx(shared): Ctx<Arc<Shared>>) -> Api<Response> {
     let dir = shared.results_dir();
-    let csv = tokio::task::spawn_blocking(move || crate::station::export::export_csv(&dir))
+    let export = tokio::task::spawn_blocking(move || crate::station::export::export_csv(&dir))
         .await
         .map_err(internal)?
         .map_err(internal)?;
+    for (file, why) in &export.skipped {
+        tracing::warn!("export.csv: {file} left out: {why}");
+    }
+    let csv = export.csv;
     Ok((
         [
             (header::CONTENT_TYPE, "text/csv; charset=utf-8"),

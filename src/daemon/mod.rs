@@ -9,6 +9,7 @@ pub mod http;
 pub mod journal;
 mod rig;
 pub mod runner;
+pub mod sets;
 pub mod worker;
 
 use crate::station::StationConfig;
@@ -108,6 +109,10 @@ pub struct Shared {
     pub journal_offline: Mutex<Option<(f64, String)>>,
     /// capture sets in `captures/` waiting for the journal to be reachable
     pub waiting_handover: Mutex<std::collections::BTreeSet<String>>,
+    /// entries of `captures/` and `incoming/` that will not be taken -> why
+    pub refused: Mutex<BTreeMap<String, String>>,
+    /// an incoming set waits for its files to settle: scan again soon
+    settling: AtomicBool,
     /// capture ids the journal is known to have
     known_ids: Mutex<std::collections::HashSet<String>>,
     /// something changed (a capture, a finished job, a request): scan and dispatch
@@ -128,6 +133,18 @@ pub struct Shared {
 }
 
 impl Shared {
+    /// Replaces the entries the scans will not take; a new one (or a new reason) is
+    /// logged once, not at every scan.
+    fn report_refused(&self, now: BTreeMap<String, String>) {
+        let mut known = self.refused.lock().unwrap_or_else(|p| p.into_inner());
+        for (entry, why) in &now {
+            if known.get(entry) != Some(why) {
+                warn!(entry = %entry, "not taken: {why}");
+            }
+        }
+        *known = now;
+    }
+
     pub fn captures_dir(&self) -> PathBuf {
         self.cfg.station.captures()
     }
@@ -201,6 +218,8 @@ impl Shared {
             worker_name,
             journal_offline: Mutex::new(None),
             waiting_handover: Default::default(),
+            refused: Default::default(),
+            settling: AtomicBool::new(false),
             known_ids: Default::default(),
             wake: Default::default(),
             abort: Default::default(),
@@ -419,6 +438,9 @@ async fn serve(
                 scan(&shared);
             }
             _ = rescan.tick() => scan(&shared),
+            _ = tokio::time::sleep(sets::SETTLE), if shared.settling.load(Ordering::SeqCst) => {
+                scan(&shared)
+            }
             _ = watchdog.tick() => {
                 let c = shared.journal().counts();
                 if let Ok(c) = c {
@@ -592,7 +614,10 @@ fn complete_result(dir: &Path) -> Option<(serde_json::Value, f64)> {
         .duration_since(std::time::UNIX_EPOCH)
         .ok()?
         .as_secs_f64();
-    let report: serde_json::Value = serde_json::from_slice(&std::fs::read(&file).ok()?).ok()?;
+    let report: serde_json::Value = serde_json::from_slice(
+        &crate::files::read_limited(&file, crate::files::MAX_REPORT_BYTES).ok()?,
+    )
+    .ok()?;
     Some((report.get("seconds").cloned().unwrap_or_default(), written))
 }
 
@@ -641,17 +666,34 @@ fn watch_error(what: &str, e: &notify::Error) -> String {
 pub fn scan(shared: &Shared) {
     let captures = shared.captures_dir();
     let incoming = shared.incoming_dir();
-    for (name, dir) in complete_sets(&incoming, |_| false) {
+    let from_incoming = sets::scan_folder(&incoming, Some(sets::SETTLE), |_| false);
+    let mut refused: BTreeMap<String, String> = from_incoming
+        .refused
+        .into_iter()
+        .map(|(name, why)| (format!("incoming/{name}"), why))
+        .collect();
+    for (name, dir) in from_incoming.sets {
         let to = captures.join(&name);
         if to.exists() {
-            warn!(capture = %name, "incoming set not moved: captures/ has a set of this id");
+            refused.insert(
+                format!("incoming/{name}"),
+                "not moved: captures/ already has a set of this id (rename one of them)".into(),
+            );
             continue;
         }
         match std::fs::rename(&dir, &to) {
             Ok(()) => info!(capture = %name, "taken in from incoming/"),
-            Err(e) => warn!(capture = %name, "moving {} into captures/: {e}", dir.display()),
+            Err(e) => {
+                refused.insert(
+                    format!("incoming/{name}"),
+                    format!("moving it into captures/ failed: {e}"),
+                );
+            }
         }
     }
+    shared
+        .settling
+        .store(from_incoming.settling, Ordering::SeqCst);
     let mut j = shared.journal();
     let mut seen = shared.known_ids.lock().unwrap_or_else(|p| p.into_inner());
     let mut waiting = shared
@@ -662,7 +704,7 @@ pub fn scan(shared: &Shared) {
     // station holds many thousands. While the journal cannot be reached, every set it
     // was not known to have is a candidate, handed over when it is back.
     let mut online = true;
-    let candidates = complete_sets(&captures, |name| {
+    let in_captures = sets::scan_folder(&captures, None, |name| {
         if seen.contains(name) {
             return true;
         }
@@ -682,7 +724,14 @@ pub fn scan(shared: &Shared) {
             }
         }
     });
-    for (name, dir) in candidates {
+    refused.extend(
+        in_captures
+            .refused
+            .into_iter()
+            .map(|(name, why)| (format!("captures/{name}"), why)),
+    );
+    shared.report_refused(refused);
+    for (name, dir) in in_captures.sets {
         // one failed call is enough to know: the others wait for the next rescan
         if !online {
             waiting.insert(name);
@@ -707,46 +756,6 @@ pub fn scan(shared: &Shared) {
             }
         }
     }
-}
-
-/// Folders under `root` with a plain name, not `skip`ped, and a `manifest.json` whose
-/// listed files are all there (a set still being copied waits for the next scan).
-fn complete_sets(root: &Path, mut skip: impl FnMut(&str) -> bool) -> Vec<(String, PathBuf)> {
-    let Ok(rd) = std::fs::read_dir(root) else {
-        return Vec::new();
-    };
-    let mut out = Vec::new();
-    for e in rd.flatten() {
-        let name = e.file_name().to_string_lossy().to_string();
-        if crate::paths::check_plain_name("capture id", &name).is_err() || skip(&name) {
-            continue;
-        }
-        let dir = e.path();
-        let manifest = dir.join("manifest.json");
-        if !e.file_type().map(|t| t.is_dir()).unwrap_or(false) || !manifest.is_file() {
-            continue;
-        }
-        // a manifest we cannot read is queued anyway: the job fails with the reason
-        let files: Vec<String> = std::fs::read(&manifest)
-            .ok()
-            .and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok())
-            .and_then(|v| {
-                v.get("cameras")?.as_array().map(|cs| {
-                    cs.iter()
-                        .filter_map(|c| c.get("file")?.as_str().map(str::to_string))
-                        .collect()
-                })
-            })
-            .unwrap_or_default();
-        if files
-            .iter()
-            .all(|f| crate::paths::check_plain_name("file", f).is_err() || dir.join(f).exists())
-        {
-            out.push((name, dir));
-        }
-    }
-    out.sort();
-    out
 }
 
 /// Starts queued jobs while fewer than `workers` run.

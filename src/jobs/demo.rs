@@ -246,10 +246,11 @@ pub fn demo_station(
             continue;
         }
         let dir = results.join(&job.id);
-        let report: serde_json::Value = std::fs::read(dir.join("report.json"))
-            .ok()
-            .and_then(|b| serde_json::from_slice(&b).ok())
-            .unwrap_or_default();
+        let report: serde_json::Value =
+            crate::files::read_limited(&dir.join("report.json"), crate::files::MAX_REPORT_BYTES)
+                .ok()
+                .and_then(|b| serde_json::from_slice(&b).ok())
+                .unwrap_or_default();
         let c = &report["conformation"];
         let scores = match (&model, mesh::read_mesh(&dir.join("conformed.ply"))) {
             (Some(m), Ok(mesh)) => m

@@ -171,7 +171,7 @@ pub fn model_posture(
 pub fn result_measurements(dir: &Path) -> Result<(Option<String>, Vec<Measurement>), JobError> {
     let path = dir.join("report.json");
     let shown = path.display().to_string();
-    let text = mesh::io::read_text_limited(&path, 64 << 20)?;
+    let text = crate::files::read_text_limited(&path, 64 << 20)?;
     let v: serde_json::Value = serde_json::from_str(&text).map_err(|e| JobError::Config {
         path: shown.clone(),
         msg: e.to_string(),
@@ -197,7 +197,7 @@ pub fn result_measurements(dir: &Path) -> Result<(Option<String>, Vec<Measuremen
 /// is allowed): each row with its line.
 pub fn read_weights(path: &Path) -> Result<Vec<(String, f64)>, JobError> {
     let shown = path.display().to_string();
-    let text = mesh::io::read_text_limited(path, 16 << 20)?;
+    let text = crate::files::read_text_limited(path, 16 << 20)?;
     let mut out = Vec::new();
     for (i, line) in text.lines().enumerate() {
         let line = line.trim();
@@ -279,7 +279,7 @@ pub fn model_weigh(
     };
     let model = crate::measure::weight::WeightModel::fit(&samples, &features)
         .map_err(|e| JobError::Usage(e.to_string()))?;
-    mesh::io::write_atomic(
+    crate::files::write_atomic(
         out,
         serde_json::to_string_pretty(&model)
             .expect("serialises")
@@ -289,7 +289,7 @@ pub fn model_weigh(
 }
 
 /// `export`: all results as CSV (see [`crate::station::export::export_csv`]).
-pub fn export_csv(results: &Path) -> Result<String, JobError> {
+pub fn export_csv(results: &Path) -> Result<crate::station::export::Export, JobError> {
     crate::station::export::export_csv(results).map_err(|e| JobError::Io {
         path: results.display().to_string(),
         source: e,

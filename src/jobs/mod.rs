@@ -19,8 +19,8 @@ pub use shapes::*;
 pub use station::*;
 pub use stereo::*;
 
+use crate::files::write_atomic;
 use crate::mesh;
-use crate::mesh::io::write_atomic;
 use std::path::Path;
 
 /// Why a job failed: the typed error of the stage that failed, or a sentence about the
@@ -62,13 +62,13 @@ pub enum JobError {
     },
 }
 
+/// Largest options file read: a page of settings, with room to spare.
+const MAX_CONFIG_BYTES: u64 = 1 << 20;
+
 /// Reads a TOML file into a table; errors name the file.
 fn read_toml(path: &Path) -> Result<toml::Table, JobError> {
     let name = path.display().to_string();
-    let text = std::fs::read_to_string(path).map_err(|source| JobError::Io {
-        path: name.clone(),
-        source,
-    })?;
+    let text = crate::files::read_text_limited(path, MAX_CONFIG_BYTES)?;
     toml::from_str(&text).map_err(|e| JobError::Config {
         path: name,
         msg: e.to_string(),

@@ -10,7 +10,65 @@ use std::path::{Path, PathBuf};
 ///
 /// Example: `conformd check config/station.example.toml`; see `tests/pipeline.rs`.
 pub fn check(config: &Path) -> Result<StationConfig, JobError> {
-    Ok(StationConfig::load(config)?)
+    let cfg = StationConfig::load(config)?;
+    check_files(&cfg)?;
+    Ok(cfg)
+}
+
+/// Loads every file the station file names with the reader the daemon and its workers
+/// use (template, landmarks, groups, rig, calibrations, measurement definitions, posture
+/// model, weights, shape model), and checks the replay folders and the worker program,
+/// so a station that passes `check` does not fail on its first capture.
+fn check_files(cfg: &StationConfig) -> Result<(), JobError> {
+    let name = cfg.file.display().to_string();
+    let fail = |msg: String| JobError::Config {
+        path: name.clone(),
+        msg,
+    };
+    // a worker whose program stands in for the pipeline may lack one of the two
+    match (&cfg.rig, &cfg.template) {
+        (Some(_), Some(_)) => {
+            Pipeline::from_config(cfg)?;
+        }
+        (Some(rig), None) => {
+            crate::stereo::rig::Reconstruction::load(&rig.file, rig.calibration.as_deref())?;
+        }
+        (None, Some(t)) => {
+            if t.figure()?.is_none() {
+                t.load()?;
+            }
+        }
+        (None, None) => {}
+    }
+    for c in &cfg.cameras {
+        for d in c.replay.iter().flatten() {
+            if !d.is_dir() {
+                return Err(fail(format!(
+                    "[[cameras]] '{}': replay {} is not a folder of capture sets",
+                    c.id,
+                    d.display()
+                )));
+            }
+        }
+    }
+    if let Some(p) = &cfg.worker.program {
+        use std::os::unix::fs::PermissionsExt;
+        let ok =
+            std::fs::metadata(p).is_ok_and(|m| m.is_file() && m.permissions().mode() & 0o111 != 0);
+        if !ok {
+            return Err(fail(format!(
+                "[worker]: program {} is not an executable file",
+                p.display()
+            )));
+        }
+    }
+    if cfg.station.data.exists() && !cfg.station.data.is_dir() {
+        return Err(fail(format!(
+            "[station]: data {} is not a folder",
+            cfg.station.data.display()
+        )));
+    }
+    Ok(())
 }
 
 /// Processes one capture set with the station file's pipeline and writes
@@ -25,6 +83,7 @@ pub fn process(
     write: Write,
     progress: &mut (dyn FnMut(Progress) + Send),
 ) -> Result<(PathBuf, ProcessReport), JobError> {
+    crate::files::refuse_inside(out, capture, "the capture set")?;
     let cfg = StationConfig::load(config)?;
     let mut pipeline = Pipeline::from_config(&cfg)?;
     let mut control = Control {

@@ -42,6 +42,16 @@ pub fn simulate(
     result
 }
 
+/// Sensor noise in grey levels: 0 to 100 (beyond that an image is noise alone).
+fn check_noise(noise: f64) -> Result<(), JobError> {
+    if !(0.0..=100.0).contains(&noise) {
+        return Err(JobError::Usage(format!(
+            "--noise {noise}: sensor noise must be 0 to 100 grey levels"
+        )));
+    }
+    Ok(())
+}
+
 /// [`simulate`]'s work; records each file and set folder it wrote in `written`.
 fn simulate_into(
     rig_path: &Path,
@@ -53,6 +63,7 @@ fn simulate_into(
     written: &mut Vec<PathBuf>,
 ) -> Result<Vec<PathBuf>, JobError> {
     use crate::template as templates;
+    check_noise(noise)?;
     let rig = crate::stereo::rig::RigFile::load(rig_path)?;
     let mesh = match subject.parse::<templates::Kind>() {
         Ok(kind) if !Path::new(subject).exists() => {
@@ -107,6 +118,32 @@ type SimImage = (String, &'static str, u32, u32, Vec<u8>);
 
 /// Writes a simulated capture set under `out` through the one capture-set writer, with
 /// `extra` files (ground truth) beside the images; returns its folder.
+/// A simulated set's subject as a plain name (a mesh path's file stem, other characters
+/// as `-`): manifests hold plain subjects only.
+fn plain_subject(subject: &str) -> String {
+    let stem = Path::new(subject)
+        .file_stem()
+        .map(|s| s.to_string_lossy().to_string())
+        .unwrap_or_default();
+    let plain: String = stem
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.') {
+                c
+            } else {
+                '-'
+            }
+        })
+        .take(crate::paths::MAX_NAME)
+        .collect();
+    let plain = plain.trim_start_matches('.').to_string();
+    if plain.is_empty() {
+        "subject".into()
+    } else {
+        plain
+    }
+}
+
 fn write_simulated_set(
     out: &Path,
     n: usize,
@@ -168,7 +205,7 @@ fn write_set(
         version: Manifest::VERSION,
         id,
         station: station.into(),
-        subject: Some(subject.into()),
+        subject: Some(plain_subject(subject)),
         started_utc: now.clone(),
         finished_utc: now,
         trigger: TriggerRecord {
@@ -201,6 +238,7 @@ pub fn simulate_placement(
 ) -> Result<PathBuf, JobError> {
     use crate::stereo::rig::RigFile;
     use crate::synth::rig::{Chessboard, placement_board, render_chessboard};
+    check_noise(noise)?;
     let (cols, rows) = parse_board(board)?;
     let rig = RigFile::load(rig_path)?;
     let cb = Chessboard { cols, rows, square };
@@ -222,7 +260,7 @@ pub fn simulate_placement(
         out,
         0,
         &rig.name,
-        "placement board",
+        "placement-board",
         images,
         &[("placement.toml", text.into_bytes())],
     )
@@ -404,18 +442,22 @@ pub fn reconstruct(
     reconstruct_with(&mut station, capture, out, report_path, as_mesh)
 }
 
+/// An image file in grey (a regular file of at most [`crate::files::MAX_IMAGE_BYTES`]),
+/// refused naming the file.
+fn read_grey(p: &Path) -> Result<image::GrayImage, JobError> {
+    let bytes = crate::files::read_limited(p, crate::files::MAX_IMAGE_BYTES)?;
+    Ok(image::load_from_memory(&bytes)
+        .map_err(|e| JobError::Usage(format!("{}: not a readable image: {e}", p.display())))?
+        .to_luma8())
+}
+
 /// A rectified pair's two images in grey, refused naming the file if one cannot be read
 /// or the two differ in size.
 fn read_rectified_pair(
     left: &Path,
     right: &Path,
 ) -> Result<(image::GrayImage, image::GrayImage), JobError> {
-    let read = |p: &Path| -> Result<image::GrayImage, JobError> {
-        Ok(image::open(p)
-            .map_err(|e| JobError::Usage(format!("{}: {e}", p.display())))?
-            .to_luma8())
-    };
-    let (l, r) = (read(left)?, read(right)?);
+    let (l, r) = (read_grey(left)?, read_grey(right)?);
     if l.dimensions() != r.dimensions() {
         return Err(JobError::Usage(format!(
             "{} is {:?} but {} is {:?}: a rectified pair has one size",
@@ -435,6 +477,32 @@ pub fn disparity(
     opts: &crate::stereo::disparity::SgbmOptions,
     out: &Path,
 ) -> Result<crate::stereo::disparity::Disparity, JobError> {
+    disparity_scored(left, right, opts, out, None).map(|(d, _)| d)
+}
+
+/// A ground truth to score a disparity map against: the file, its scale (None: the file
+/// type's own) and the first column scored.
+pub struct TruthArgs<'a> {
+    pub file: &'a Path,
+    pub scale: Option<f64>,
+    pub min_x: u32,
+}
+
+/// [`disparity`] scored against a truth: the truth is read first and the map written
+/// only once it is scored, so a bad truth leaves no map behind.
+pub fn disparity_scored(
+    left: &Path,
+    right: &Path,
+    opts: &crate::stereo::disparity::SgbmOptions,
+    out: &Path,
+    truth: Option<TruthArgs>,
+) -> Result<
+    (
+        crate::stereo::disparity::Disparity,
+        Option<crate::stereo::truth::TruthScore>,
+    ),
+    JobError,
+> {
     let ext = out
         .extension()
         .and_then(|e| e.to_str())
@@ -447,6 +515,13 @@ pub fn disparity(
         )));
     }
     opts.validate().map_err(JobError::Usage)?;
+    let truth = truth
+        .map(|t| {
+            crate::stereo::truth::read_truth(t.file, t.scale)
+                .map(|read| (t, read))
+                .map_err(JobError::Usage)
+        })
+        .transpose()?;
     let (l, r) = read_rectified_pair(left, right)?;
     if opts.num_disparities as u32 >= l.width() {
         return Err(JobError::Usage(format!(
@@ -483,8 +558,14 @@ pub fn disparity(
     } else {
         d.pfm()
     };
+    let score = truth
+        .map(|(t, read)| {
+            crate::stereo::truth::score(&d, &read, t.min_x)
+                .map_err(|e| JobError::Usage(format!("{}: {e}", t.file.display())))
+        })
+        .transpose()?;
     write_atomic(out, &bytes)?;
-    Ok(d)
+    Ok((d, score))
 }
 
 /// How a disparity map compares with a ground truth (`--truth`): the truth file, its
@@ -528,14 +609,8 @@ pub fn import_pair(
     num_disparities: Option<i32>,
     out: &Path,
 ) -> Result<ImportedPair, JobError> {
-    let read = |p: &Path| -> Result<Vec<u8>, JobError> {
-        std::fs::read(p).map_err(|source| JobError::Io {
-            path: p.display().to_string(),
-            source,
-        })
-    };
     let (l, r) = read_rectified_pair(left, right)?;
-    let calib_text = read(calib)?;
+    let calib_text = crate::files::read_limited(calib, 1 << 20)?;
     let cal = crate::stereo::recorded::parse_calibration(&String::from_utf8_lossy(&calib_text))
         .map_err(|e| JobError::Usage(format!("{}: {e}", calib.display())))?;
     let ndisp = num_disparities.unwrap_or_else(|| match cal.ndisp {
@@ -552,7 +627,7 @@ pub fn import_pair(
     if let (Some(t), Some(file)) = (truth, &truth_file) {
         // parsed now, so that a truth of the wrong size is refused before anything is
         // written; copied as it was
-        let bytes = read(t)?;
+        let bytes = crate::files::read_limited(t, crate::files::MAX_IMAGE_BYTES)?;
         let parsed = crate::stereo::truth::parse_truth(t, &bytes, None).map_err(JobError::Usage)?;
         if (parsed.width, parsed.height) != (w, h) {
             return Err(JobError::Usage(format!(
@@ -721,12 +796,7 @@ pub fn calibrate(
     let mut size = None;
     let mut pairs = Vec::new();
     for (l, r) in lefts.iter().zip(&rights) {
-        let read = |p: &Path| -> Result<image::GrayImage, JobError> {
-            Ok(image::open(p)
-                .map_err(|e| JobError::Usage(format!("{}: {e}", p.display())))?
-                .to_luma8())
-        };
-        let (a, b) = (read(l)?, read(r)?);
+        let (a, b) = (read_grey(l)?, read_grey(r)?);
         let dims = a.dimensions();
         if b.dimensions() != dims || size.is_some_and(|s| s != dims) {
             return Err(JobError::Usage(format!(

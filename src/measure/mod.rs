@@ -118,7 +118,7 @@ impl Definitions {
     pub fn read(path: &Path) -> Result<Definitions, MeasureError> {
         let shown = path.display().to_string();
         let text =
-            crate::mesh::io::read_text_limited(path, 1 << 20).map_err(|e| MeasureError::File {
+            crate::files::read_text_limited(path, 1 << 20).map_err(|e| MeasureError::File {
                 path: shown.clone(),
                 message: e.to_string(),
             })?;
@@ -372,15 +372,30 @@ impl Resolved {
                         .ok_or_else(|| err("the axis has no length on this mesh".into()))?;
                     let piece = section_piece(mesh, &p, &normal)
                         .ok_or_else(|| err("the plane does not cut the mesh".into()))?;
+                    // a plane through the mesh's extreme vertex touches it at one point:
+                    // no section to measure, not a girth of 0
+                    let spread = piece
+                        .iter()
+                        .map(|q| (q - piece[0]).norm())
+                        .fold(0.0, f64::max);
+                    if !(spread > 1e-6 * mesh.diagonal()) {
+                        return Err(err(format!(
+                            "the plane only touches the mesh at ({:.4}, {:.4}, {:.4}); there is no section to measure",
+                            piece[0].x, piece[0].y, piece[0].z
+                        )));
+                    }
                     match across {
                         None => (hull_perimeter(&piece, &normal), 1),
                         Some([a, b]) => {
                             let d = place(b) - place(a);
-                            let d = (d - normal * normal.dot(&d))
-                                .try_normalize(0.0)
-                                .ok_or_else(|| {
-                                    err("the width's direction lies along the axis".into())
-                                })?;
+                            let side = d - normal * normal.dot(&d);
+                            // within ~6 degrees of the axis the direction across is noise
+                            if !(side.norm() > 0.1 * d.norm()) {
+                                return Err(err(
+                                    "the width's direction (across) lies along the axis on this mesh; it must cross the section".into(),
+                                ));
+                            }
+                            let d = side.normalize();
                             let (lo, hi) = piece
                                 .iter()
                                 .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), q| {

@@ -168,7 +168,7 @@ impl WeightModel {
             message,
         };
         let text =
-            crate::mesh::io::read_text_limited(path, 1 << 20).map_err(|e| bad(e.to_string()))?;
+            crate::files::read_text_limited(path, 1 << 20).map_err(|e| bad(e.to_string()))?;
         let m: WeightModel = serde_json::from_str(&text).map_err(|e| bad(e.to_string()))?;
         let k = m.features.len();
         if m.format != FORMAT

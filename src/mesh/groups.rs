@@ -3,7 +3,7 @@
 //! shape model analyse one segment.
 
 use super::Mesh;
-use crate::mesh::io::FileError;
+use crate::files::FileError;
 use std::collections::BTreeMap;
 use std::path::Path;
 
@@ -42,7 +42,7 @@ pub fn parse(
 /// Reads a groups file for `mesh` and adds its groups (replacing same-named ones).
 pub fn read_into(path: &Path, mesh: &mut Mesh) -> Result<(), FileError> {
     let name = path.display().to_string();
-    let text = std::fs::read_to_string(path).map_err(|e| FileError::io(&name, e))?;
+    let text = crate::files::read_text_limited(path, crate::files::MAX_TABLE_BYTES)?;
     mesh.groups
         .extend(parse(&name, &text, mesh.vertices.len())?);
     Ok(())

@@ -1,58 +1,15 @@
 //! Mesh and point-cloud files: OBJ (read through tobj), PLY ascii and binary little-endian
-//! (read and write), OFF (read), and atomic writes (temporary name, fsync, rename).
+//! (read and write), OFF (read); files are opened through [`crate::files`].
 //!
 //! Every reader has a `*_bytes(name, bytes)` form that takes the file's content, so the
 //! property tests can feed random bytes; `name` only labels the errors.
 
 use super::{Mesh, V3};
+use crate::files::read_limited;
+pub use crate::files::{FileError, write_atomic};
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::fmt::Write as _;
-use std::io::Write;
-use std::path::{Path, PathBuf};
-
-/// What went wrong reading or writing a mesh; every variant names the file.
-/// Why a mesh, landmark or groups file could not be read or written; every variant
-/// names the file, and a parse error the line.
-#[derive(Debug, thiserror::Error)]
-pub enum FileError {
-    #[error("{path}: {source}")]
-    Io {
-        path: String,
-        source: std::io::Error,
-    },
-    #[error("{path}: line {line}: {msg}")]
-    Line {
-        path: String,
-        line: usize,
-        msg: String,
-    },
-    #[error("{path}: {msg}")]
-    Content { path: String, msg: String },
-    #[error("{path}: unsupported mesh format (expected .obj, .ply or .off)")]
-    Format { path: String },
-}
-
-impl FileError {
-    pub fn io(path: &str, source: std::io::Error) -> FileError {
-        FileError::Io {
-            path: path.to_string(),
-            source,
-        }
-    }
-    pub fn line(path: &str, line: usize, msg: impl Into<String>) -> FileError {
-        FileError::Line {
-            path: path.to_string(),
-            line,
-            msg: msg.into(),
-        }
-    }
-    pub fn content(path: &str, msg: impl Into<String>) -> FileError {
-        FileError::Content {
-            path: path.to_string(),
-            msg: msg.into(),
-        }
-    }
-}
+use std::path::Path;
 
 fn line_err(path: &str, line: usize, msg: impl Into<String>) -> FileError {
     FileError::line(path, line, msg)
@@ -68,56 +25,21 @@ pub fn read_mesh(path: &Path) -> Result<Mesh, FileError> {
     let name = path.display().to_string();
     let ext = extension(path);
     let bytes = read_limited(path, MAX_MESH_BYTES)?;
-    match ext.as_str() {
+    let mesh = match ext.as_str() {
         "ply" => read_ply_bytes(&name, &bytes),
         "obj" => read_obj_bytes(&name, &bytes),
         "off" => read_off_bytes(&name, &bytes),
-        _ => Err(FileError::Format { path: name }),
-    }
+        _ => Err(FileError::Format { path: name.clone() }),
+    }?;
+    // held here, not in the format readers: a coordinate of 1e300 is valid PLY
+    mesh.check_coordinates("the mesh")
+        .map_err(|msg| content_err(&name, msg))?;
+    Ok(mesh)
 }
 
 /// Largest mesh file read: a 20M-point binary PLY with normals; a device, a stream or a
 /// runaway file is refused instead of read until memory runs out.
 pub const MAX_MESH_BYTES: u64 = 1 << 30;
-
-/// Reads a regular file of at most `max` bytes. A folder, a device, a pipe or a larger
-/// file is refused with a sentence naming it.
-pub fn read_limited(path: &Path, max: u64) -> Result<Vec<u8>, FileError> {
-    use std::io::Read;
-    let name = path.display().to_string();
-    let f = std::fs::File::open(path).map_err(|e| FileError::io(&name, e))?;
-    let meta = f.metadata().map_err(|e| FileError::io(&name, e))?;
-    if !meta.is_file() {
-        return Err(content_err(&name, "not a regular file"));
-    }
-    if meta.len() > max {
-        return Err(content_err(
-            &name,
-            format!(
-                "{} bytes, more than the {} this file may have",
-                meta.len(),
-                max
-            ),
-        ));
-    }
-    let mut bytes = Vec::with_capacity(meta.len() as usize);
-    f.take(max + 1)
-        .read_to_end(&mut bytes)
-        .map_err(|e| FileError::io(&name, e))?;
-    if bytes.len() as u64 > max {
-        return Err(content_err(
-            &name,
-            format!("grew past {max} bytes while read"),
-        ));
-    }
-    Ok(bytes)
-}
-
-/// [`read_limited`] for UTF-8 text.
-pub fn read_text_limited(path: &Path, max: u64) -> Result<String, FileError> {
-    String::from_utf8(read_limited(path, max)?)
-        .map_err(|_| content_err(&path.display().to_string(), "not UTF-8 text"))
-}
 
 /// Writes `.ply` (binary little-endian) or `.obj`, atomically.
 pub fn write_mesh(path: &Path, mesh: &Mesh) -> Result<(), FileError> {
@@ -138,53 +60,6 @@ fn extension(path: &Path) -> String {
         .and_then(|e| e.to_str())
         .unwrap_or("")
         .to_ascii_lowercase()
-}
-
-/// Writes bytes to a new file and syncs it (inside a folder that is renamed into place
-/// whole, where a temporary name per file is not needed).
-pub fn write_synced(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
-    let mut f = std::fs::File::create(path)?;
-    f.write_all(bytes)?;
-    f.sync_all()
-}
-
-/// Syncs a folder, so renames inside it survive a power cut (best effort).
-pub fn sync_dir(dir: &Path) {
-    if let Ok(d) = std::fs::File::open(dir) {
-        let _ = d.sync_all();
-    }
-}
-
-/// Writes `bytes` to a temporary name in the same directory, syncs it, then renames it
-/// over `path`, so a reader (or a crash) never sees a half-written file.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), FileError> {
-    let name = path.display().to_string();
-    let io = |e| FileError::io(&name, e);
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
-        _ => PathBuf::from("."),
-    };
-    let file_name = path
-        .file_name()
-        .ok_or_else(|| content_err(&name, "not a file name"))?;
-    let tmp = dir.join(format!(
-        ".{}.tmp-{}",
-        file_name.to_string_lossy(),
-        std::process::id()
-    ));
-    let result = (|| {
-        let mut f = std::fs::File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
-        std::fs::rename(&tmp, path)?;
-        // Sync the directory so the rename itself survives a power cut.
-        sync_dir(&dir);
-        Ok(())
-    })();
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    result.map_err(io)
 }
 
 // ---------------------------------------------------------------- PLY

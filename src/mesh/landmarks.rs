@@ -2,7 +2,7 @@
 //! scan), `#` comments; and MeshLab picked-points `.pp` files. Landmarks pair up by name.
 
 use super::{Mesh, V3};
-use crate::mesh::io::FileError;
+use crate::files::FileError;
 use std::path::Path;
 
 /// Where a landmark sits: a vertex of the mesh it belongs to, or a free point.
@@ -18,11 +18,14 @@ pub struct Landmark {
     pub pos: LandmarkPos,
 }
 
+/// Largest landmark file read: thousands of named points, not a mesh.
+pub const MAX_LANDMARK_BYTES: u64 = 16 << 20;
+
 /// Reads a landmark file; `.pp` files are read as MeshLab picked points, anything else as
 /// text.
 pub fn read_landmarks(path: &Path) -> Result<Vec<Landmark>, FileError> {
     let name = path.display().to_string();
-    let bytes = std::fs::read(path).map_err(|e| FileError::io(&name, e))?;
+    let bytes = crate::files::read_limited(path, MAX_LANDMARK_BYTES)?;
     let is_pp = path
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("pp"));

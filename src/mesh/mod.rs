@@ -142,6 +142,23 @@ impl Mesh {
             .sum()
     }
 
+    /// Checks that every coordinate lies within [`MAX_COORDINATE`] of the origin; `what`
+    /// names the mesh in the error.
+    pub fn check_coordinates(&self, what: &str) -> Result<(), String> {
+        match self
+            .vertices
+            .iter()
+            .enumerate()
+            .find(|(_, p)| p.iter().any(|c| !(c.abs() <= MAX_COORDINATE)))
+        {
+            Some((i, p)) => Err(format!(
+                "{what}: vertex {i} at ({:e}, {:e}, {:e}) lies beyond {MAX_COORDINATE:e} from the origin",
+                p.x, p.y, p.z
+            )),
+            None => Ok(()),
+        }
+    }
+
     /// Checks that every index is in range and every coordinate finite; `what` names the
     /// mesh in the error.
     pub fn validate(&self, what: &str) -> Result<(), String> {
@@ -170,6 +187,11 @@ impl Mesh {
         Ok(())
     }
 }
+
+/// Largest coordinate accepted (kilometres in millimetres); beyond it squared distances
+/// lose all precision, search structures misbehave and a picture's scale underflows, so
+/// every mesh file read is held to it.
+pub const MAX_COORDINATE: f64 = 1e9;
 
 /// Keeps the triangles for which `keep(triangle index)` holds and drops vertices no kept
 /// triangle uses. Returns the mesh and, for each new vertex, its old index.

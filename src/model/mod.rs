@@ -14,6 +14,8 @@ use rayon::prelude::*;
 
 pub const FORMAT: &str = "conformd-shape-model";
 pub const VERSION: u32 = 1;
+/// Largest model file read: 500 shapes of a 100k-vertex template in JSON, with room.
+pub const MAX_MODEL_BYTES: u64 = 4 << 30;
 
 #[derive(Debug, thiserror::Error)]
 pub enum ModelError {
@@ -537,15 +539,17 @@ impl ShapeModel {
 
     pub fn save(&self, path: &std::path::Path) -> Result<(), crate::mesh::FileError> {
         let json = serde_json::to_vec(self).expect("a model serialises");
-        crate::mesh::io::write_atomic(path, &json)
+        crate::files::write_atomic(path, &json)
     }
 
+    /// Reads a model saved by [`ShapeModel::save`] (at most [`MAX_MODEL_BYTES`]) and checks it.
     pub fn load(path: &std::path::Path) -> Result<ShapeModel, ModelError> {
         let name = path.display().to_string();
-        let bytes = std::fs::read(path).map_err(|e| ModelError::File {
-            path: name.clone(),
-            msg: e.to_string(),
-        })?;
+        let bytes =
+            crate::files::read_limited(path, MAX_MODEL_BYTES).map_err(|e| ModelError::File {
+                path: name.clone(),
+                msg: e.to_string(),
+            })?;
         let m: ShapeModel = serde_json::from_slice(&bytes).map_err(|e| ModelError::File {
             path: name.clone(),
             msg: e.to_string(),

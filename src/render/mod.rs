@@ -317,7 +317,7 @@ where
     P: image::PixelWithColorType,
     [P::Subpixel]: image::EncodableLayout,
 {
-    crate::mesh::io::write_atomic(path, &png_bytes(img))
+    crate::files::write_atomic(path, &png_bytes(img))
 }
 
 /// Places images in a grid (row-major), each cell the size of the first image; an

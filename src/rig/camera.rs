@@ -161,7 +161,8 @@ pub fn frame_from_file(camera: &str, path: &Path) -> Result<(u32, u32, FrameData
         camera: camera.into(),
         msg,
     };
-    let bytes = std::fs::read(path).map_err(|e| err(format!("{}: {e}", path.display())))?;
+    let bytes = crate::files::read_limited(path, crate::files::MAX_IMAGE_BYTES)
+        .map_err(|e| err(e.to_string()))?;
     let img = image::load_from_memory(&bytes)
         .map_err(|e| err(format!("{}: not a readable image: {e}", path.display())))?;
     let (w, h) = (img.width(), img.height());

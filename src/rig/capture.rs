@@ -117,6 +117,8 @@ pub enum CaptureError {
     },
     #[error("writing {path}: {msg}")]
     Write { path: String, msg: String },
+    #[error("{0}")]
+    Subject(String),
     #[error("capture failed {attempts} times; last: {last}")]
     GaveUp {
         attempts: u32,
@@ -208,6 +210,10 @@ impl Session {
 
     /// Captures one set, retrying as configured.
     pub fn capture(&mut self, subject: Option<&str>) -> Result<CaptureSet, CaptureError> {
+        // the subject goes into the manifest, the journal, page links and CSV exports
+        if let Some(s) = subject {
+            crate::paths::check_plain_name("subject", s).map_err(CaptureError::Subject)?;
+        }
         let mut last = None;
         let attempts = self.options.retries + 1;
         for attempt in 1..=attempts {

@@ -4,7 +4,7 @@
 //! plain names inside the set, files are regular and size-limited, images are checked
 //! against the manifest before anyone matches them.
 
-use crate::mesh::io::{sync_dir, write_synced};
+use crate::files::{sync_dir, write_synced};
 use crate::paths::check_plain_name;
 use std::path::{Path, PathBuf};
 use std::time::{SystemTime, UNIX_EPOCH};
@@ -12,7 +12,6 @@ use std::time::{SystemTime, UNIX_EPOCH};
 /// Largest `manifest.json` read.
 const MAX_MANIFEST_BYTES: u64 = 1 << 20;
 /// Largest camera image read (a 12-bit 20-megapixel PNG fits).
-const MAX_IMAGE_BYTES: u64 = 256 << 20;
 /// Most cameras one set may list.
 const MAX_CAMERAS: usize = 256;
 
@@ -67,6 +66,10 @@ impl Manifest {
             ));
         }
         check_plain_name("capture id", &self.id)?;
+        if let Some(s) = &self.subject {
+            // shown on pages, linked, exported to spreadsheets: the API's rule
+            check_plain_name("subject", s)?;
+        }
         if self.cameras.is_empty() || self.cameras.len() > MAX_CAMERAS {
             return Err(format!(
                 "lists {} cameras (1 to {MAX_CAMERAS})",
@@ -251,6 +254,31 @@ impl CaptureSetDir {
             })
     }
 
+    /// Refuses two cameras whose files are one file on disk (one a link to the other, or
+    /// hard-linked): the manifest's check sees only the names, and a pod would compare an
+    /// image with itself.
+    pub fn check_distinct_files(&self) -> Result<(), CaptureSetError> {
+        use std::os::unix::fs::MetadataExt;
+        let mut seen: std::collections::HashMap<(u64, u64), &str> = Default::default();
+        for c in &self.manifest.cameras {
+            let path = self.dir.join(&c.file);
+            // a missing or unreadable file is named when its image is read
+            let Ok(m) = std::fs::metadata(&path) else {
+                continue;
+            };
+            if let Some(other) = seen.insert((m.dev(), m.ino()), &c.id) {
+                return Err(CaptureSetError::Image {
+                    camera: c.id.clone(),
+                    path: path.display().to_string(),
+                    msg: format!(
+                        "the file is camera {other}'s image too (a link to it); every camera needs its own"
+                    ),
+                });
+            }
+        }
+        Ok(())
+    }
+
     /// Reads pod `pod`'s `side` camera image as 8-bit grey, checked against the size the
     /// manifest gives and against `expected` (the calibration's). The file must be a
     /// regular file inside the set: a symbolic link out of it is refused.
@@ -277,7 +305,7 @@ impl CaptureSetDir {
         if !inside {
             return Err(fail("the file links outside the capture set".into()));
         }
-        let bytes = read_regular(&path, MAX_IMAGE_BYTES).map_err(|e| match e {
+        let bytes = read_regular(&path, crate::files::MAX_IMAGE_BYTES).map_err(|e| match e {
             ReadError::Io(source) => io_err(&path)(source),
             ReadError::Refused(msg) => fail(msg),
         })?;
@@ -301,11 +329,11 @@ impl CaptureSetDir {
     }
 }
 
-/// A regular file of at most `max` bytes ([`crate::mesh::io::read_limited`]): an I/O
+/// A regular file of at most `max` bytes ([`crate::files::read_limited`]): an I/O
 /// failure is the machine's, a refusal (not a regular file, too large) the set's.
 fn read_regular(path: &Path, max: u64) -> Result<Vec<u8>, ReadError> {
     use crate::mesh::FileError;
-    crate::mesh::io::read_limited(path, max).map_err(|e| match e {
+    crate::files::read_limited(path, max).map_err(|e| match e {
         FileError::Io { source, .. } => ReadError::Io(source),
         FileError::Content { msg, .. } | FileError::Line { msg, .. } => ReadError::Refused(msg),
         other => ReadError::Refused(other.to_string()),

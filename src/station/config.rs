@@ -146,6 +146,24 @@ pub struct JournalSection {
     pub poll_s: f64,
 }
 
+impl JournalSection {
+    /// The URL as it may be shown: any password replaced by `***`.
+    pub fn shown_url(&self) -> Option<String> {
+        let u = self.url.as_ref()?;
+        let Some((scheme, rest)) = u.split_once("://") else {
+            return Some(u.clone());
+        };
+        let (auth, host) = match rest.rsplit_once('@') {
+            Some((a, h)) => (a, h),
+            None => return Some(u.clone()),
+        };
+        Some(match auth.split_once(':') {
+            Some((user, _)) => format!("{scheme}://{user}:***@{host}"),
+            None => u.clone(),
+        })
+    }
+}
+
 impl Default for JournalSection {
     fn default() -> Self {
         JournalSection {
@@ -290,7 +308,7 @@ impl StationConfig {
             path: name.clone(),
             problems: vec![ConfigProblem { line: None, msg }],
         };
-        let text = crate::mesh::io::read_text_limited(path, MAX_CONFIG_BYTES).map_err(|e| {
+        let text = crate::files::read_text_limited(path, MAX_CONFIG_BYTES).map_err(|e| {
             let msg = e.to_string();
             fail(
                 msg.strip_prefix(&format!("{name}: "))
@@ -370,12 +388,42 @@ impl StationConfig {
         let daemon: DaemonSection = read!("daemon", DaemonSection).unwrap_or_default();
         let journal: JournalSection = read!("journal", JournalSection).unwrap_or_default();
         let worker: WorkerSection = read!("worker", WorkerSection).unwrap_or_default();
-        if let Some(u) = &journal.url
-            && !(u.starts_with("postgres://") || u.starts_with("postgresql://"))
+        if let Some(u) = &journal.url {
+            if !(u.starts_with("postgres://") || u.starts_with("postgresql://")) {
+                add(
+                    at("journal"),
+                    "[journal]: url must start with postgres:// or postgresql://".into(),
+                );
+            } else if let Err(e) = u.parse::<postgres::Config>() {
+                // the driver's own reading, so what passes here connects the same way;
+                // the URL is not quoted: it may hold a password
+                add(
+                    at("journal"),
+                    format!("[journal]: url is not a PostgreSQL connection URL: {e}"),
+                );
+            }
+        }
+        if doc.get_ref().is_empty() {
+            add(
+                None,
+                "the station file is empty: it needs at least [station], and [template] and [rig] to process captures (see config/station.example.toml)".into(),
+            );
+        }
+        if station.data.as_os_str().is_empty() {
+            add(
+                at("station"),
+                "[station]: data = \"\" names no folder; give the folder for captures/, incoming/ and results/ (\".\" for the station file's own)".into(),
+            );
+        }
+        if let Some(c) = &capture
+            && !(c.options.max_skew_ms >= 0.0 && c.options.max_skew_ms <= 10_000.0)
         {
             add(
-                at("journal"),
-                "[journal]: url must start with postgres:// or postgresql://".into(),
+                at("capture"),
+                format!(
+                    "[capture]: max_skew_ms = {} is not 0 to 10000",
+                    c.options.max_skew_ms
+                ),
             );
         }
         let within = |v: f64, lo: f64, hi: f64| (lo..=hi).contains(&v);
@@ -457,11 +505,21 @@ impl StationConfig {
                     daemon.listen
                 ),
             ),
-            Ok(a) if !a.ip().is_loopback() && daemon.token.as_deref().unwrap_or("").len() < 16 => {
+            Ok(a)
+                if !a.ip().is_loopback()
+                    && daemon
+                        .token
+                        .as_deref()
+                        .unwrap_or("")
+                        .chars()
+                        .filter(|c| !c.is_whitespace())
+                        .count()
+                        < 16 =>
+            {
                 add(
                     at("daemon"),
                     format!(
-                        "[daemon]: listening on {a}, beyond this machine, needs a token of 16 or more characters"
+                        "[daemon]: listening on {a}, beyond this machine, needs a token of 16 or more characters other than spaces"
                     ),
                 )
             }
@@ -492,6 +550,17 @@ impl StationConfig {
         };
         cfg.resolve_paths();
         Ok(cfg)
+    }
+
+    /// The config as it may be printed: the journal URL's password and the API token
+    /// replaced by `***`.
+    pub fn shown(&self) -> StationConfig {
+        let mut c = self.clone();
+        c.journal.url = self.journal.shown_url();
+        if c.daemon.token.is_some() {
+            c.daemon.token = Some("***".into());
+        }
+        c
     }
 
     /// Makes every relative path absolute against the file's folder.

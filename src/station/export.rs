@@ -4,8 +4,15 @@
 
 use std::path::Path;
 
-/// A CSV field, quoted when it holds a comma, quote or line break.
+/// A CSV text field, quoted when it holds a comma, quote or line break; one that starts
+/// like a formula (`=`, `+`, `-`, `@`, a tab) gets a leading `'`, so a spreadsheet shows
+/// it rather than runs it.
 pub fn csv_field(s: &str) -> String {
+    let s = &if s.starts_with(['=', '+', '-', '@', '\t', '\r']) {
+        format!("'{s}")
+    } else {
+        s.to_string()
+    };
     if s.contains([',', '"', '\n', '\r']) {
         format!("\"{}\"", s.replace('"', "\"\""))
     } else {
@@ -15,8 +22,9 @@ pub fn csv_field(s: &str) -> String {
 
 /// One CSV row per result folder under `results`: capture, subject, station,
 /// the fit's distance and distortion, every measurement (raw and posture-free) and the
-/// weight. Folders without a readable report are skipped.
-pub fn export_csv(results: &Path) -> std::io::Result<String> {
+/// weight. A folder whose report cannot be read, is not JSON or names no capture is left
+/// out and listed in [`Export::skipped`] with the reason.
+pub fn export_csv(results: &Path) -> std::io::Result<Export> {
     let entries = std::fs::read_dir(results)?;
     let mut dirs: Vec<_> = entries
         .flatten()
@@ -30,12 +38,22 @@ pub fn export_csv(results: &Path) -> std::io::Result<String> {
         .collect();
     dirs.sort();
     let mut rows: Vec<serde_json::Value> = Vec::new();
+    let mut skipped = Vec::new();
     for d in dirs {
-        let Ok(text) = crate::mesh::io::read_text_limited(&d.join("report.json"), 64 << 20) else {
-            continue;
-        };
-        if let Ok(v) = serde_json::from_str::<serde_json::Value>(&text) {
-            rows.push(v);
+        let file = d.join("report.json");
+        let read = crate::files::read_text_limited(&file, crate::files::MAX_REPORT_BYTES)
+            .map_err(|e| e.to_string())
+            .and_then(|text| {
+                serde_json::from_str::<serde_json::Value>(&text)
+                    .map_err(|e| format!("not JSON: {e}"))
+            })
+            .and_then(|v| match v.get("capture") {
+                Some(serde_json::Value::String(_)) => Ok(v),
+                _ => Err("not a result report (no capture id)".into()),
+            });
+        match read {
+            Ok(v) => rows.push(v),
+            Err(why) => skipped.push((file.display().to_string(), why)),
         }
     }
     // the columns: every measurement name any result has, in first-seen order
@@ -105,5 +123,12 @@ pub fn export_csv(results: &Path) -> std::io::Result<String> {
         row.extend(["kg", "low", "high"].map(|k| text(w.and_then(|w| w.get(k)))));
         s += &(row.join(",") + "\n");
     }
-    Ok(s)
+    Ok(Export { csv: s, skipped })
+}
+
+/// [`export_csv`]'s table and the result folders it left out.
+pub struct Export {
+    pub csv: String,
+    /// (report file, why it was left out)
+    pub skipped: Vec<(String, String)>,
 }

@@ -5,9 +5,9 @@
 //! and whether the capture (permanent) or the machine (retryable) is at fault.
 
 use crate::conform::{self, ConformError, ConformOptions, ConformReport, IterationReport};
+use crate::files::{sync_dir, write_synced};
 use crate::measure::weight::{WeightModel, WeightPrediction};
 use crate::measure::{Definitions, Measurement, PostureRemoval, Resolved};
-use crate::mesh::io::{sync_dir, write_synced};
 use crate::mesh::{Landmark, Mesh};
 use crate::model::{ModelError, Score, ShapeModel};
 use crate::rig::capture_set::{CaptureSetDir, CaptureSetError};
@@ -694,6 +694,7 @@ pub fn read_pod_images(
     set: &CaptureSetDir,
     pods: &[crate::stereo::calib::Pod],
 ) -> Result<PodPixels, CaptureSetError> {
+    set.check_distinct_files()?;
     let mut pixels = Vec::new();
     let mut cameras = Vec::new();
     for pod in pods {

@@ -49,6 +49,36 @@ impl std::fmt::Display for CalibrationReport {
     }
 }
 
+/// Fewest pixels a square spans in the searched copy for OpenCV to find the corners.
+const MIN_SQUARE_PIXELS: u32 = 4;
+
+/// Refuses a board that cannot be seen in a `width` x `height` image (fewer than
+/// [`MIN_SQUARE_PIXELS`] per square in the searched copy) or a square size that is not a
+/// positive length, before OpenCV is asked: a huge board would have it allocate the
+/// board's corners until memory runs out, and its exceptions then cannot be caught.
+fn check_board(cols: u32, rows: u32, square: f64, width: u32, height: u32) -> Result<(), String> {
+    if !(square.is_finite() && square > 0.0) {
+        return Err(format!(
+            "the chessboard's square size must be a positive length in metres, got {square}"
+        ));
+    }
+    let scale = (width as f64 / 640.0).max(1.0);
+    let (w, h) = (
+        (width as f64 / scale) as u64,
+        (height as f64 / scale) as u64,
+    );
+    let fits =
+        |corners: u32, pixels: u64| (corners as u64 + 1) * MIN_SQUARE_PIXELS as u64 <= pixels;
+    if cols < 3 || rows < 3 || !fits(cols, w) || !fits(rows, h) {
+        return Err(format!(
+            "a {cols}x{rows} board (inner corners) cannot be found in {width}x{height} images: \
+             it needs 3 or more corners each way and at least {MIN_SQUARE_PIXELS} pixels per \
+             square at {w}x{h}, where the corners are searched"
+        ));
+    }
+    Ok(())
+}
+
 fn corners(img: &Mat, cols: u32, rows: u32) -> opencv::Result<Option<Vector<Point2f>>> {
     // search a copy at most 640 pixels wide (the search's time grows with the pixels, and
     // on an image without a board it tries everything), then refine at full size
@@ -133,6 +163,7 @@ pub fn calibrate(
     square: f64,
     id: &str,
 ) -> Result<(Pod, CalibrationReport), String> {
+    check_board(cols, rows, square, width, height)?;
     let run = || -> opencv::Result<Result<(Pod, CalibrationReport), String>> {
         let object = board_points(cols, rows, square);
         let (mut obj, mut left, mut right) = (
@@ -309,6 +340,7 @@ pub fn read_yaml(
     height: u32,
 ) -> Result<(Pod, CalibrationOrigin), String> {
     let name = path.display().to_string();
+    crate::files::check_regular_path(path, 1 << 20).map_err(|e| e.to_string())?;
     let run = || -> opencv::Result<Result<(Pod, CalibrationOrigin), String>> {
         let fs = core::FileStorage::new(&name, core::FileStorage_Mode::READ as i32, "")?;
         if !fs.is_opened()? {
@@ -460,6 +492,7 @@ pub fn board_pose(
             "a {cols}x{rows} board looks the same from both ends; placement needs one odd and one even count of inner corners (e.g. 9x6)"
         ));
     }
+    check_board(cols, rows, square, k.width, k.height)?;
     let run = || -> opencv::Result<Option<BoardView>> {
         let img = gray_mat(pixels, k.width, k.height)?;
         let Some(found) = corners(&img, cols, rows)? else {

@@ -67,7 +67,7 @@ pub struct RigFile {
 impl RigFile {
     /// Reads and checks a rig file; errors name the file and the pod.
     pub fn load(path: &Path) -> Result<RigFile, FileError> {
-        let text = crate::mesh::io::read_text_limited(path, 1 << 20)?;
+        let text = crate::files::read_text_limited(path, 1 << 20)?;
         RigFile::parse(&path.display().to_string(), &text)
     }
 

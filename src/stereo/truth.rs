@@ -130,6 +130,16 @@ pub fn score_depth(points: &[V3], pod: &Pod, truth: &Truth) -> Result<DepthScore
         }
     }
     let n = errors.len();
+    if known == 0 {
+        return Err(
+            "the truth has no known pixels in front of the camera; nothing to score".into(),
+        );
+    }
+    if n == 0 {
+        return Err(format!(
+            "the scan covers none of the truth's {known} known pixels; nothing to score"
+        ));
+    }
     let share = |a: usize, of: usize| if of > 0 { a as f64 / of as f64 } else { 0.0 };
     errors.sort_by(f64::total_cmp);
     Ok(DepthScore {
@@ -155,7 +165,8 @@ pub fn score_depth(points: &[V3], pod: &Pod, truth: &Truth) -> Result<DepthScore
 /// `.png`, 0 unknown, divided by `scale`: by default 256 for a 16-bit PNG (KITTI) and 4
 /// for an 8-bit one (Middlebury 2001-2006 quarter-size sets).
 pub fn read_truth(path: &Path, scale: Option<f64>) -> Result<Truth, String> {
-    let bytes = std::fs::read(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    let bytes = crate::files::read_limited(path, crate::files::MAX_IMAGE_BYTES)
+        .map_err(|e| e.to_string())?;
     parse_truth(path, &bytes, scale)
 }
 
@@ -231,6 +242,13 @@ fn parse_pfm(bytes: &[u8]) -> Result<Truth, String> {
     if !(w >= 1.0 && h >= 1.0 && w * h <= 1e8) {
         return Err(format!("PFM size {w} x {h} out of range"));
     }
+    // the scale's sign gives the byte order; 0 or NaN gives none
+    if !(scale.is_finite() && scale != 0.0) {
+        return Err(format!(
+            "PFM scale '{}' must be a non-zero number (negative: little-endian, positive: big-endian)",
+            fields[3]
+        ));
+    }
     let (w, h) = (w as usize, h as usize);
     let data = &bytes[start..];
     if data.len() < w * h * 4 {
@@ -279,6 +297,21 @@ pub fn score(d: &Disparity, truth: &Truth, min_x: u32) -> Result<TruthScore, Str
             bad1 += (e > 1.0) as usize;
             bad2 += (e > 2.0) as usize;
         }
+    }
+    if known == 0 {
+        return Err(format!(
+            "the truth has no known pixels{}; nothing to score",
+            if min_x > 0 {
+                format!(" from column {min_x} on (the images are {} wide)", d.width)
+            } else {
+                String::new()
+            }
+        ));
+    }
+    if valid == 0 {
+        return Err(format!(
+            "the disparity map has no valid pixel where the truth's {known} are known; nothing to score"
+        ));
     }
     let share = |n: usize, of: usize| if of > 0 { n as f64 / of as f64 } else { 0.0 };
     Ok(TruthScore {

@@ -41,6 +41,9 @@ impl TemplateSource {
     /// else an existing mesh file.
     pub fn named(name: &str, groups: Option<PathBuf>) -> Result<TemplateSource, String> {
         match name.parse::<Kind>() {
+            Ok(_) if !Path::new(name).exists() && groups.is_some() => Err(format!(
+                "the generic {name} template brings its own groups; --template-groups is for a template mesh file"
+            )),
             Ok(kind) if !Path::new(name).exists() => Ok(TemplateSource::generic(kind)),
             _ if Path::new(name).exists() => Ok(TemplateSource {
                 mesh: Some(name.into()),
