@@ -660,6 +660,9 @@ fn corrupt_sets_fail_with_their_reason_and_a_crashing_job_does_not_stop_the_daem
         page.contains("id=\"not-taken\"") && page.contains("incoming/twice"),
         "the page lists them"
     );
+    // an unknown subject's page and its plot answer alike
+    assert_eq!(daemon.get("/subjects/nobody").0, 404);
+    assert_eq!(daemon.get("/subjects/nobody/history.png").0, 404);
     let mut j = journal(d);
     let mut state = |id: &str| j.get(id).unwrap().unwrap();
     for i in 0..3 {

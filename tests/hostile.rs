@@ -900,3 +900,29 @@ fn every_folder_entry_the_daemon_will_not_take_is_named_with_its_reason() {
     assert_eq!(settled.sets.len(), 1, "{settled:?}");
     assert!(!settled.settling);
 }
+
+#[test]
+fn messages_say_what_to_write_and_pages_agree_with_their_pictures() {
+    // a vertex index of -1: what a point may be, not serde's enum name
+    let e = conformd::measure::Definitions::parse(
+        "[[measurement]]\nname = \"h\"\nkind = \"height\"\npoint = -1\n",
+        "defs.toml",
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.contains("a point is a vertex index (0 or more)") && !e.contains("untagged"),
+        "{e}"
+    );
+    // one id weighed twice with two weights
+    let dir = tempfile::tempdir().unwrap();
+    let w = dir.path().join("weights.csv");
+    std::fs::write(&w, "id,kg\npig-1,80\npig-2,90\npig-1,80\npig-1,95\n").unwrap();
+    let e = conformd::jobs::read_weights(&w).unwrap_err().to_string();
+    assert!(
+        e.contains("line 5") && e.contains("95 kg here and 80 kg on line 2"),
+        "{e}"
+    );
+    std::fs::write(&w, "id,kg\npig-1,80\npig-1,80\n").unwrap();
+    assert_eq!(conformd::jobs::read_weights(&w).unwrap().len(), 1);
+}

@@ -731,7 +731,7 @@ fn subject_results(shared: &Shared, tag: &str) -> Api<Vec<(Job, serde_json::Valu
         .filter(|j| j.subject.as_deref() == Some(tag))
         .collect();
     jobs.sort_by(|a, b| a.queued_at.total_cmp(&b.queued_at));
-    Ok(jobs
+    let results: Vec<_> = jobs
         .into_iter()
         .filter_map(|j| {
             let r = j.result.as_ref()?.join("report.json");
@@ -741,17 +741,19 @@ fn subject_results(shared: &Shared, tag: &str) -> Api<Vec<(Job, serde_json::Valu
             .ok()?;
             Some((j, v))
         })
-        .collect())
-}
-
-async fn subject_page(Ctx(shared): Ctx<Arc<Shared>>, Path(tag): Path<String>) -> Api<Html<String>> {
-    let results = subject_results(&shared, &tag)?;
+        .collect();
+    // the page and its plot answer alike: no finished result, nothing to show
     if results.is_empty() {
         return Err(ApiError(
             StatusCode::NOT_FOUND,
             format!("subject '{tag}' has no finished result"),
         ));
     }
+    Ok(results)
+}
+
+async fn subject_page(Ctx(shared): Ctx<Arc<Shared>>, Path(tag): Path<String>) -> Api<Html<String>> {
+    let results = subject_results(&shared, &tag)?;
     let mut h = String::new();
     let _ = write!(
         h,

@@ -198,7 +198,9 @@ pub fn result_measurements(dir: &Path) -> Result<(Option<String>, Vec<Measuremen
 pub fn read_weights(path: &Path) -> Result<Vec<(String, f64)>, JobError> {
     let shown = path.display().to_string();
     let text = crate::files::read_text_limited(path, 16 << 20)?;
-    let mut out = Vec::new();
+    let mut out: Vec<(String, f64)> = Vec::new();
+    // id -> (line, kg): a second weighing of one id must agree with the first
+    let mut first: std::collections::HashMap<String, (usize, f64)> = Default::default();
     for (i, line) in text.lines().enumerate() {
         let line = line.trim();
         if line.is_empty() || line.starts_with('#') {
@@ -212,7 +214,22 @@ pub fn read_weights(path: &Path) -> Result<Vec<(String, f64)>, JobError> {
             });
         };
         match kg.parse::<f64>() {
-            Ok(kg) if kg.is_finite() && kg > 0.0 => out.push((id.to_string(), kg)),
+            Ok(kg) if kg.is_finite() && kg > 0.0 => match first.get(id) {
+                Some(&(_, earlier)) if earlier == kg => {}
+                Some(&(at, earlier)) => {
+                    return Err(JobError::Config {
+                        path: shown,
+                        msg: format!(
+                            "line {}: '{id}' weighs {kg} kg here and {earlier} kg on line {at}; one weight per id",
+                            i + 1
+                        ),
+                    });
+                }
+                None => {
+                    first.insert(id.to_string(), (i + 1, kg));
+                    out.push((id.to_string(), kg));
+                }
+            },
             _ if i == 0 => continue, // a header
             _ => {
                 return Err(JobError::Config {

@@ -111,7 +111,11 @@ impl Definitions {
     pub fn parse(text: &str, path: &str) -> Result<Definitions, MeasureError> {
         toml::from_str(text).map_err(|e| MeasureError::File {
             path: path.into(),
-            message: e.to_string(),
+            // serde's words for an untagged enum name the type, not what to write
+            message: e.to_string().replace(
+                "data did not match any variant of untagged enum Point",
+                "not a point: a point is a vertex index (0 or more), a landmark name, a position [x, y, z], or a list of points (their centroid)",
+            ),
         })
     }
 

@@ -9,8 +9,14 @@ pub const FORMAT: &str = "conformd-weight";
 
 #[derive(Debug, thiserror::Error)]
 pub enum WeightError {
-    #[error("a weight regression needs at least {need} weighed results, got {got}")]
-    TooFew { got: usize, need: usize },
+    #[error(
+        "a weight regression on {features} measurement(s) needs at least {need} weighed results (3 more than its measurements, and never fewer than 5), got {got}"
+    )]
+    TooFew {
+        got: usize,
+        need: usize,
+        features: usize,
+    },
     #[error("sample {sample}: {message}")]
     Sample { sample: String, message: String },
     #[error("the result has no measurement '{0}', which the weight regression uses")]
@@ -70,6 +76,7 @@ impl WeightModel {
             return Err(WeightError::TooFew {
                 got: samples.len(),
                 need,
+                features: features.len(),
             });
         }
         let mut raw: Vec<Vec<f64>> = Vec::with_capacity(samples.len());
