@@ -4,8 +4,9 @@
 //! `-- --options FILE` conforms with a `[conform]`-style TOML of options, `-- --only
 //! NAME,...` keeps the cases of those meshes (`captured`, `box` included), `-- --export DIR` writes each case (template,
 //! scan, truth, landmarks) for the peer comparison in `benches/peer/`; `-- --set
-//! standard|hard|all` picks the standard cases (default), the harder set of issue 29
-//! (its last column says which part, development or VALIDATION) or both.
+//! standard|hard|generic|all` picks the standard cases (default), the harder set of issue 29
+//! (its last column says which part, development or VALIDATION), the generic templates onto
+//! outside subjects scored by semantic landmarks, or all of them.
 
 use conformd::conform::{ConformOptions, conform};
 use conformd::mesh::io::write_mesh;
@@ -172,11 +173,16 @@ fn main() {
             println!("  (the truth folds {folds} triangles over their neighbours)");
         }
     }
-    println!(
-        "mean over {} cases: {:.3}%",
-        cases.len(),
-        sum / cases.len() as f64 * 100.0
-    );
+    if !cases.is_empty() {
+        println!(
+            "mean over {} cases: {:.3}%",
+            cases.len(),
+            sum / cases.len() as f64 * 100.0
+        );
+    }
+    if set == "generic" || set == "all" {
+        generic(&opts, &only, pictures.as_deref());
+    }
     if (set == "standard" || set == "all") && (only.is_empty() || only.contains(&"box")) {
         // the paper's shape change (not a posture): a sphere onto a box with a face
         // missing, which the defaults must still fill flat
@@ -192,4 +198,84 @@ fn main() {
             r.report.mean_distance_relative * 100.0
         );
     }
+}
+
+/// The generic templates onto outside subjects without landmarks (the up axis known),
+/// scored by the semantic landmarks marked on both.
+fn generic(opts: &ConformOptions, only: &[&str], pictures: Option<&std::path::Path>) {
+    use conformd::synth::semantic;
+    println!(
+        "{:<44} {:>6} | {:>6} {:>6} {:>6} | {:>5} {:>6} | {:>6}",
+        "generic template onto", "points", "mean%", "max%", "wrong", "fold", "var", "s"
+    );
+    let mut sum = 0.0;
+    let mut n = 0;
+    for part in [devset::Part::Development, devset::Part::Validation] {
+        for c in semantic::generic_cases(part, only).expect("generic cases") {
+            let t = Instant::now();
+            let r = conform(&c.template, &c.scan, None, &c.options(opts), &mut |_| {})
+                .expect("conforms");
+            let secs = t.elapsed().as_secs_f64();
+            let s = c.score(&r.mesh.vertices);
+            if let Some(dir) = pictures {
+                // the result coloured by its distance to the scan, and both as files
+                std::fs::create_dir_all(dir).expect("pictures folder");
+                let stem = c.name.replace([' ', ','], "_");
+                let surface =
+                    conformd::conform::correspond::ScanSurface::new(&c.scan).expect("scan");
+                let colour = Colouring::distances(
+                    r.mesh
+                        .vertices
+                        .iter()
+                        .map(|p| surface.nearest_point(p).1)
+                        .collect(),
+                );
+                let img = render::render(&r.mesh, &colour, &RenderOptions::default());
+                render::save_png(&img, &dir.join(format!("{stem}.png"))).expect("picture");
+                write_mesh(&dir.join(format!("{stem}_result.obj")), &r.mesh).expect("result");
+                write_mesh(&dir.join(format!("{stem}_scan.ply")), &c.scan).expect("scan");
+            }
+            sum += s.mean;
+            n += 1;
+            println!(
+                "{:<44} {:>6} | {:>6.3} {:>6.3} {:>6} | {:>5} {:>6.3} | {:>6.2} {}",
+                c.name,
+                c.scan.vertices.len(),
+                s.mean * 100.0,
+                s.max * 100.0,
+                s.wrong_limb.len(),
+                r.report.folded_triangles,
+                r.report.final_variation.edge_length.std,
+                secs,
+                match c.part {
+                    devset::Part::Development => "dev",
+                    devset::Part::Validation => "VALIDATION",
+                }
+            );
+            let per: Vec<String> = s
+                .per_mark
+                .iter()
+                .map(|(m, d)| format!("{m} {:.2}", d * 100.0))
+                .collect();
+            println!("  {}", per.join(", "));
+            if !s.wrong_limb.is_empty() {
+                println!("  on another limb: {}", s.wrong_limb.join(", "));
+            }
+            if let conformd::conform::GlobalReport::Automatic(a) = &r.report.global {
+                eprintln!(
+                    "  alignment: {} candidates, residual {:.4} (runner-up {:?}), {} fitted, kept {}; limbs turned {:?}",
+                    a.candidates_tried,
+                    a.residual,
+                    a.runner_up_residual,
+                    a.fitted,
+                    a.kept,
+                    a.limb_turns.iter().map(|t| t.round()).collect::<Vec<_>>()
+                );
+            }
+        }
+    }
+    println!(
+        "generic: mean over {n} cases {:.3}%",
+        sum / n.max(1) as f64 * 100.0
+    );
 }

@@ -486,3 +486,84 @@ fn the_limb_search_turns_swung_limbs_toward_the_scan() {
     assert!(before > 0.05, "the posture is large: {before}");
     assert!(after < 0.0112, "{before} -> {after}");
 }
+
+/// The generic templates onto outside subjects without landmarks: (case, mean semantic
+/// landmark error %, limb ends on another limb). Bounds about 1.25x the figures measured
+/// at this change (printed beside them); far from the aim (1.5%, no limb swapped), and the
+/// README says so: the test holds what there is, so a regression fails.
+const GENERIC_BOUNDS: &[(&str, f64, usize)] = &[
+    ("generic pig onto koala, posed", 4.97, 0),
+    ("generic pig onto koala, large posture", 8.44, 0),
+    ("generic body onto human, posed", 4.63, 2),
+    ("generic body onto human, large posture", 3.21, 0),
+    ("generic pig onto cow, posed", 2.97, 0),
+    ("generic pig onto cow, large posture", 5.37, 0),
+    ("generic body onto woman, posed", 1.84, 0),
+    ("generic body onto woman, large posture", 33.6, 3),
+];
+
+#[test]
+fn generic_templates_onto_outside_subjects_hold_per_case() {
+    // the station's real case: conformd's pig or body (another shape, another
+    // triangulation) onto an outside animal or person, the up axis known, no landmarks;
+    // scored by semantic landmarks marked on both
+    use conformd::synth::semantic;
+    let opts = ConformOptions::default();
+    let mut failures = Vec::new();
+    let mut seen = 0;
+    for part in [devset::Part::Development, devset::Part::Validation] {
+        for c in semantic::generic_cases(part, &[]).unwrap() {
+            assert!(c.marks.len() >= 7, "{}: {} marks", c.name, c.marks.len());
+            let r = conform(&c.template, &c.scan, None, &c.options(&opts), &mut |_| {}).unwrap();
+            let s = c.score(&r.mesh.vertices);
+            let &(_, mean, wrong) = GENERIC_BOUNDS
+                .iter()
+                .find(|b| b.0 == c.name)
+                .unwrap_or_else(|| panic!("no bound for case '{}'", c.name));
+            seen += 1;
+            eprintln!(
+                "{:<40} {part:?}: mean {:.3}% (bound {mean}%), max {:.2}%, on another limb {:?} (bound {wrong})",
+                c.name,
+                s.mean * 100.0,
+                s.max * 100.0,
+                s.wrong_limb
+            );
+            if s.mean * 100.0 > mean || s.wrong_limb.len() > wrong {
+                failures.push(format!(
+                    "{}: mean {:.3}%, on another limb {:?}",
+                    c.name,
+                    s.mean * 100.0,
+                    s.wrong_limb
+                ));
+            }
+        }
+    }
+    assert_eq!(seen, GENERIC_BOUNDS.len(), "every bound has its case");
+    assert!(failures.is_empty(), "{failures:#?}");
+}
+
+#[test]
+fn semantic_scoring_sees_a_swapped_limb() {
+    // the score itself: the truth scores 0; a result with the two front hooves' template
+    // vertices moved onto each other's true places is flagged, not averaged away
+    use conformd::synth::semantic;
+    let c = semantic::generic_cases(devset::Part::Development, &["koala"])
+        .unwrap()
+        .remove(0);
+    let mut x = c.template.vertices.clone();
+    for m in &c.marks {
+        x[m.vertex as usize] = m.truth;
+    }
+    let s = c.score(&x);
+    assert!(s.mean < 1e-12 && s.wrong_limb.is_empty());
+    let mark = |n: &str| c.marks.iter().find(|m| m.name == n).unwrap();
+    let (fl, fr) = (mark("hoof_fl"), mark("hoof_fr"));
+    x[fl.vertex as usize] = fr.truth;
+    x[fr.vertex as usize] = fl.truth;
+    let s = c.score(&x);
+    assert_eq!(
+        s.wrong_limb,
+        vec!["hoof_fl".to_string(), "hoof_fr".to_string()]
+    );
+    assert!(s.max > 0.05, "{}", s.max);
+}

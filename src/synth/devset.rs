@@ -258,11 +258,47 @@ pub fn case_onto(template: &Mesh, subject: &Mesh, spec: &DevCaseSpec) -> Case {
         subject.vertices.len(),
         "a subject in the template's vertex order"
     );
+    let mut rng = ChaCha8Rng::seed_from_u64(spec.seed);
+    let (truth, ext) = posed(subject, spec, template.diagonal(), &mut rng);
+    let diag = template.diagonal();
+    let subject = Mesh::new(truth.clone(), template.triangles.clone());
+    let (scan, in_hole) = scan_subject(
+        &subject,
+        &[0.0, 90.0, 180.0, 270.0],
+        spec.scan_points,
+        spec.noise,
+        spec.seed,
+    );
+    let picked: Vec<u32> = ext
+        .samples
+        .iter()
+        .take(spec.landmarks)
+        .map(|s| s.0)
+        .collect();
+    let (template_landmarks, scan_landmarks) =
+        landmark_pairs(&picked, &truth, spec.landmark_noise * diag, &mut rng);
+    Case {
+        template: template.clone(),
+        scan,
+        template_landmarks,
+        scan_landmarks,
+        truth: Some(truth),
+        in_hole,
+    }
+}
+
+/// The subject posed as `spec` says (its limbs turned, bent, twisted, scaled), then
+/// turned to its heading and by `turn` about a random axis, and shifted by `shift` of
+/// `diag`: each vertex's true place, and the extremities the posing found.
+pub(crate) fn posed(
+    subject: &Mesh,
+    spec: &DevCaseSpec,
+    diag: f64,
+    rng: &mut ChaCha8Rng,
+) -> (Vec<V3>, Extremities) {
     let nb = topology::vertex_neighbours(subject.vertices.len(), &subject.triangles);
     let ext: Extremities = posing::extremities(subject, &nb, spec.landmarks.max(spec.pose.limbs));
     let mut truth = posing::pose(subject, &nb, &ext, &spec.pose);
-    let mut rng = ChaCha8Rng::seed_from_u64(spec.seed);
-    let diag = template.diagonal();
     if spec.heading != 0.0 {
         let c = truth.iter().sum::<V3>() / truth.len() as f64;
         let rot = nalgebra::Rotation3::from_axis_angle(&V3::z_axis(), spec.heading.to_radians());
@@ -288,30 +324,7 @@ pub fn case_onto(template: &Mesh, subject: &Mesh, spec: &DevCaseSpec) -> Case {
             *p = c + rot * (*p - c) + dir * spec.shift * diag;
         }
     }
-    let subject = Mesh::new(truth.clone(), template.triangles.clone());
-    let (scan, in_hole) = scan_subject(
-        &subject,
-        &[0.0, 90.0, 180.0, 270.0],
-        spec.scan_points,
-        spec.noise,
-        spec.seed,
-    );
-    let picked: Vec<u32> = ext
-        .samples
-        .iter()
-        .take(spec.landmarks)
-        .map(|s| s.0)
-        .collect();
-    let (template_landmarks, scan_landmarks) =
-        landmark_pairs(&picked, &truth, spec.landmark_noise * diag, &mut rng);
-    Case {
-        template: template.clone(),
-        scan,
-        template_landmarks,
-        scan_landmarks,
-        truth: Some(truth),
-        in_hole,
-    }
+    (truth, ext)
 }
 
 /// Landmarks `x0, x1, ...` on the `picked` template vertices, and on the scan at their
@@ -669,14 +682,10 @@ pub fn dense_uneven_body(mesh: &Mesh) -> Mesh {
     refine(&m, |p| p.z > h(0.6) && p.x > x(0.0))
 }
 
-/// The harder set of issue 29: large postures (limbs swung 45-90 degrees, the whole bent
-/// and twisted, a new heading), one person's mesh onto another person's, dense uneven
-/// triangulations (50k+ vertices, edge CV near 1 and over), holes; each case with 12
-/// landmarks and without (the up axis given, as a station's config does).
-/// `Part::Development` is what the defaults may be tuned on; `Part::Validation` (the cow,
-/// the dense koala, the man onto the woman, the dense SMPL-X body) is only measured.
-pub fn hard_cases(part: Part, names: &[&str]) -> Result<Vec<DevCase>, String> {
-    let large = |seed: u64, heading: f64| DevCaseSpec {
+/// The large posture of the harder set: 8 extremities tried as limbs, turned 45-90
+/// degrees; the whole bent 20 and twisted 15 degrees, scaled 1.05, turned to `heading`.
+pub fn large_posture(seed: u64, heading: f64) -> DevCaseSpec {
+    DevCaseSpec {
         pose: PoseSettings {
             limbs: 8,
             limb_degrees: (45.0, 90.0),
@@ -688,7 +697,17 @@ pub fn hard_cases(part: Part, names: &[&str]) -> Result<Vec<DevCase>, String> {
         heading,
         seed: seed + 100,
         ..DevCaseSpec::default()
-    };
+    }
+}
+
+/// The harder set of issue 29: large postures (limbs swung 45-90 degrees, the whole bent
+/// and twisted, a new heading), one person's mesh onto another person's, dense uneven
+/// triangulations (50k+ vertices, edge CV near 1 and over), holes; each case with 12
+/// landmarks and without (the up axis given, as a station's config does).
+/// `Part::Development` is what the defaults may be tuned on; `Part::Validation` (the cow,
+/// the dense koala, the man onto the woman, the dense SMPL-X body) is only measured.
+pub fn hard_cases(part: Part, names: &[&str]) -> Result<Vec<DevCase>, String> {
+    let large = large_posture;
     // (name, what it is, template, subject, spec)
     let mut made: Vec<(String, Mesh, Option<Mesh>, DevCaseSpec)> = Vec::new();
     let want = |n: &str| names.is_empty() || names.contains(&n);

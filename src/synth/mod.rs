@@ -8,6 +8,7 @@ pub mod devset;
 pub mod posing;
 pub mod rig;
 pub mod scanner;
+pub mod semantic;
 pub mod trigger_box;
 
 use crate::mesh::{Mesh, V3};

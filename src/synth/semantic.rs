@@ -1,0 +1,197 @@
+//! The station's real case as a development case: conformd's generic pig or body
+//! template conformed without landmarks onto an outside animal or person (another shape,
+//! another triangulation, no vertex correspondence), scored by semantic landmarks marked
+//! on both: the template's own named landmarks, and the same points marked on the outside
+//! mesh (`tests/data/meshes/*.marks`, how they were placed in `tests/data/README.md`).
+
+use super::cases::scan_subject;
+use super::devset::{self, DevCaseSpec, Part, large_posture, posed};
+use crate::mesh::landmarks::{self, LandmarkPos};
+use crate::mesh::{Mesh, V3};
+use crate::template::{self, Kind};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+
+/// One semantic landmark: the template vertex its name is on, and where it truly is on
+/// the posed subject.
+pub struct Mark {
+    pub name: String,
+    pub vertex: u32,
+    pub truth: V3,
+}
+
+pub struct SemanticCase {
+    pub name: String,
+    pub template: Mesh,
+    pub scan: Mesh,
+    pub marks: Vec<Mark>,
+    /// the posed subject's bounding-box diagonal: errors are relative to it
+    pub diag: f64,
+    pub part: Part,
+}
+
+/// Per-landmark distances (relative to the diagonal), their mean, and the limb ends
+/// (hooves, hands, toes) that ended nearer another limb end's true place than their own.
+pub struct SemanticScore {
+    pub per_mark: Vec<(String, f64)>,
+    pub mean: f64,
+    pub max: f64,
+    pub wrong_limb: Vec<String>,
+}
+
+impl SemanticCase {
+    /// The conformation options of a station: `base` with the up axis known.
+    pub fn options(&self, base: &crate::conform::ConformOptions) -> crate::conform::ConformOptions {
+        let mut o = base.clone();
+        o.align.template_up = Some([0.0, 0.0, 1.0]);
+        o.align.scan_up = Some([0.0, 0.0, 1.0]);
+        o
+    }
+
+    pub fn score(&self, result: &[V3]) -> SemanticScore {
+        let per_mark: Vec<(String, f64)> = self
+            .marks
+            .iter()
+            .map(|m| {
+                let d = (result[m.vertex as usize] - m.truth).norm() / self.diag;
+                (m.name.clone(), d)
+            })
+            .collect();
+        let mean = per_mark.iter().map(|m| m.1).sum::<f64>() / per_mark.len().max(1) as f64;
+        let max = per_mark.iter().map(|m| m.1).fold(0.0, f64::max);
+        let ends: Vec<&Mark> = self.marks.iter().filter(|m| is_limb_end(&m.name)).collect();
+        let wrong_limb = ends
+            .iter()
+            .filter(|m| {
+                let p = result[m.vertex as usize];
+                let own = (p - m.truth).norm();
+                ends.iter()
+                    .any(|o| o.name != m.name && (p - o.truth).norm() < own)
+            })
+            .map(|m| m.name.clone())
+            .collect();
+        SemanticScore {
+            per_mark,
+            mean,
+            max,
+            wrong_limb,
+        }
+    }
+}
+
+/// The ends of limbs, one mark per limb: a hoof, a hand or a toe found on another limb is
+/// a swapped part, not an imprecise fit.
+fn is_limb_end(name: &str) -> bool {
+    ["hoof_", "hand_tip_", "toe_"]
+        .iter()
+        .any(|p| name.starts_with(p))
+}
+
+/// The semantic marks of an outside mesh: `<file stem>.marks` beside it, `name vertex`
+/// per line (the landmark text format).
+pub fn marks_of(mesh_name: &str) -> Result<Vec<(String, u32)>, String> {
+    let stem = match mesh_name {
+        // the woman is in the man's vertex order: the same vertices are the same points
+        "human" | "woman" => "human",
+        other => other,
+    };
+    let path = devset::data_dir().join(format!("{stem}.marks"));
+    let bytes = std::fs::read(&path).map_err(|e| format!("{}: {e}", path.display()))?;
+    landmarks::parse_text(&path.display().to_string(), &bytes)
+        .map_err(|e| e.to_string())?
+        .into_iter()
+        .map(|l| match l.pos {
+            LandmarkPos::Vertex(v) => Ok((l.name, v)),
+            LandmarkPos::Point(_) => Err(format!("{}: {} is not a vertex", path.display(), l.name)),
+        })
+        .collect()
+}
+
+/// The generic templates onto outside subjects, posed twice (the development set's
+/// posture and the harder set's large one), each to its own heading: the pig onto the
+/// koala and the body onto the man (development), the pig onto the cow and the body onto
+/// the woman (validation, never tuned on).
+pub fn generic_cases(part: Part, names: &[&str]) -> Result<Vec<SemanticCase>, String> {
+    let subjects: &[(&str, Kind)] = match part {
+        Part::Development => &[("koala", Kind::Pig), ("human", Kind::Body)],
+        Part::Validation => &[("cow", Kind::Pig), ("woman", Kind::Body)],
+    };
+    let mut out = Vec::new();
+    for (k, &(subject_name, kind)) in subjects.iter().enumerate() {
+        if !names.is_empty() && !names.contains(&subject_name) {
+            continue;
+        }
+        let fig = template::build(kind, 10_000);
+        let named: Vec<(String, u32)> = fig
+            .landmarks()
+            .into_iter()
+            .filter_map(|l| match l.pos {
+                LandmarkPos::Vertex(v) => Some((l.name, v)),
+                LandmarkPos::Point(_) => None,
+            })
+            .collect();
+        let subject = devset::load(subject_name)?;
+        let marks = marks_of(subject_name)?;
+        let seed = 40 + 10 * k as u64 + if part == Part::Validation { 100 } else { 0 };
+        let postures = [
+            (
+                "posed",
+                DevCaseSpec {
+                    heading: 35.0,
+                    seed: seed + 1,
+                    pose: super::posing::PoseSettings {
+                        seed,
+                        ..Default::default()
+                    },
+                    ..DevCaseSpec::default()
+                },
+            ),
+            ("large posture", large_posture(seed + 2, -65.0)),
+        ];
+        for (what, spec) in postures {
+            let mut rng = ChaCha8Rng::seed_from_u64(spec.seed);
+            let (truth, _) = posed(&subject, &spec, subject.diagonal(), &mut rng);
+            let posed_mesh = Mesh::new(truth.clone(), subject.triangles.clone());
+            let (scan, _) = scan_subject(
+                &posed_mesh,
+                &[0.0, 90.0, 180.0, 270.0],
+                spec.scan_points,
+                spec.noise,
+                spec.seed,
+            );
+            let marks: Vec<Mark> = marks
+                .iter()
+                .map(|(name, v)| {
+                    let vertex = named
+                        .iter()
+                        .find(|(n, _)| n == name)
+                        .map(|(_, t)| *t)
+                        .ok_or_else(|| format!("the generic template has no landmark '{name}'"))?;
+                    let truth = *truth.get(*v as usize).ok_or_else(|| {
+                        format!("{subject_name}: mark {name} on vertex {v}, past the mesh")
+                    })?;
+                    Ok(Mark {
+                        name: name.clone(),
+                        vertex,
+                        truth,
+                    })
+                })
+                .collect::<Result<_, String>>()?;
+            out.push(SemanticCase {
+                name: format!(
+                    "generic {} onto {subject_name}, {what}",
+                    match kind {
+                        Kind::Pig => "pig",
+                        Kind::Body => "body",
+                    }
+                ),
+                template: fig.mesh.clone(),
+                scan,
+                marks,
+                diag: posed_mesh.diagonal(),
+                part,
+            });
+        }
+    }
+    Ok(out)
+}
