@@ -160,15 +160,136 @@ pub fn resolve(name: &str) -> PathBuf {
     }
 }
 
+/// What the camera needs of a device's capture queue: a stream started afresh at arming
+/// (its sequence numbers counting from 0, as V4L2 drivers do at STREAMON) and its next
+/// filled buffer within a time limit. The real one is the `v4l` crate's mmap stream; the
+/// unit tests feed the camera's own logic from a queue of chosen buffers.
+pub trait CaptureQueue: Send {
+    fn start(&mut self) -> std::io::Result<()>;
+    /// the next buffer's bytes in use and its driver metadata
+    fn next(&mut self, timeout: Duration) -> std::io::Result<(Vec<u8>, BufferMeta)>;
+    fn stop(&mut self);
+}
+
+/// The driver's metadata of one dequeued buffer.
+#[derive(Debug, Clone, Copy)]
+pub struct BufferMeta {
+    pub sequence: u32,
+    pub sec: i64,
+    pub usec: i64,
+}
+
+/// A device's mmap buffers (4 of them), made at each start.
+struct MmapQueue {
+    dev: std::sync::Arc<Device>,
+    stream: Option<MmapStream<'static>>,
+}
+
+impl CaptureQueue for MmapQueue {
+    fn start(&mut self) -> std::io::Result<()> {
+        self.stream = None;
+        self.stream = Some(MmapStream::with_buffers(&self.dev, Type::VideoCapture, 4)?);
+        Ok(())
+    }
+
+    fn next(&mut self, timeout: Duration) -> std::io::Result<(Vec<u8>, BufferMeta)> {
+        let stream = self
+            .stream
+            .as_mut()
+            .ok_or_else(|| std::io::Error::other("grab before arm"))?;
+        stream.set_timeout(timeout);
+        let (buf, meta) = stream.next()?;
+        let used = (meta.bytesused as usize).min(buf.len());
+        Ok((
+            buf[..used].to_vec(),
+            BufferMeta {
+                sequence: meta.sequence,
+                sec: meta.timestamp.sec,
+                usec: meta.timestamp.usec,
+            },
+        ))
+    }
+
+    fn stop(&mut self) {
+        self.stream = None;
+    }
+}
+
 /// A V4L2 camera.
 pub struct V4l2Camera {
     info: CameraInfo,
     path: PathBuf,
-    dev: Device,
-    stream: Option<MmapStream<'static>>,
+    /// shared with the capture queue, which streams from it
+    dev: std::sync::Arc<Device>,
+    frames: FrameStream,
+}
+
+/// The part of a camera that turns dequeued buffers into frames: decoding, the driver's
+/// timestamp, and the sequence check (a frame lost since arming, or between two grabs of
+/// one arming, is an error, not a silently later frame).
+struct FrameStream {
+    camera: String,
+    queue: Box<dyn CaptureQueue>,
+    armed: bool,
     format: (PixelFormat, u32, u32),
     exposure_us: Option<u32>,
-    last_sequence: Option<u32>,
+    /// the sequence number the next frame must carry
+    expected: u32,
+}
+
+impl FrameStream {
+    fn arm(&mut self) -> std::io::Result<()> {
+        // a fresh stream: no stale frame from before the trigger is taken
+        self.armed = false;
+        self.queue.start()?;
+        self.armed = true;
+        self.expected = 0;
+        Ok(())
+    }
+
+    fn grab(&mut self, deadline: Instant, path: &Path) -> Result<Frame, CameraError> {
+        let start = Instant::now();
+        let left = deadline.saturating_duration_since(start);
+        let (f, w, h) = self.format;
+        let camera = self.camera.clone();
+        let device = |msg: String| CameraError::Device {
+            camera: camera.clone(),
+            msg: format!("{}: {msg}", path.display()),
+        };
+        if !self.armed {
+            return Err(device("grab before arm".into()));
+        }
+        let (bytes, meta) = match self.queue.next(left.max(Duration::from_millis(1))) {
+            Ok(x) => x,
+            Err(e) if e.kind() == std::io::ErrorKind::TimedOut => {
+                return Err(CameraError::Timeout {
+                    camera,
+                    waited_ms: start.elapsed().as_millis() as u64,
+                });
+            }
+            Err(e) => return Err(device(e.to_string())),
+        };
+        let sequence = meta.sequence;
+        let expected = self.expected;
+        self.expected = sequence.wrapping_add(1);
+        if sequence != expected {
+            return Err(CameraError::LostFrame {
+                camera,
+                expected,
+                got: sequence,
+            });
+        }
+        let data = decode(f, &bytes, w, h).map_err(device)?;
+        Ok(Frame {
+            camera,
+            width: w,
+            height: h,
+            data,
+            sensor_time: timestamp(meta.sec, meta.usec),
+            sequence,
+            exposure_us: self.exposure_us,
+        })
+    }
 }
 
 /// Frame sizes (width, height) a camera offers for one format.
@@ -182,14 +303,23 @@ impl V4l2Camera {
             camera: info.id.clone(),
             msg: format!("{}: {e}", path.display()),
         })?;
+        let dev = std::sync::Arc::new(dev);
+        let queue = MmapQueue {
+            dev: dev.clone(),
+            stream: None,
+        };
         Ok(V4l2Camera {
+            frames: FrameStream {
+                camera: info.id.clone(),
+                queue: Box::new(queue),
+                armed: false,
+                format: (PixelFormat::Mjpg, 0, 0),
+                exposure_us: None,
+                expected: 0,
+            },
             info,
             path,
             dev,
-            stream: None,
-            format: (PixelFormat::Mjpg, 0, 0),
-            exposure_us: None,
-            last_sequence: None,
         })
     }
 
@@ -254,76 +384,22 @@ impl Camera for V4l2Camera {
                 value: v4l::control::Value::Integer(value),
             });
         }
-        self.format = (f, w, h);
-        self.exposure_us = s.exposure_us;
+        self.frames.format = (f, w, h);
+        self.frames.exposure_us = s.exposure_us;
         Ok(())
     }
 
     fn arm(&mut self) -> Result<(), CameraError> {
-        // a fresh stream: no stale frame from before the trigger is taken
-        self.stream = None;
-        let stream =
-            MmapStream::with_buffers(&self.dev, Type::VideoCapture, 4).map_err(|e| self.err(e))?;
-        self.stream = Some(stream);
-        self.last_sequence = None;
-        Ok(())
+        self.frames.arm().map_err(|e| self.err(e))
     }
 
     fn grab(&mut self, deadline: Instant) -> Result<Frame, CameraError> {
-        let start = Instant::now();
-        let left = deadline.saturating_duration_since(start);
-        let (f, w, h) = self.format;
-        let camera = self.info.id.clone();
-        let stream = self.stream.as_mut().ok_or_else(|| CameraError::Device {
-            camera: camera.clone(),
-            msg: "grab before arm".into(),
-        })?;
-        stream.set_timeout(left.max(Duration::from_millis(1)));
-        let (buf, meta) = match stream.next() {
-            Ok(x) => x,
-            Err(e) if e.kind() == std::io::ErrorKind::TimedOut => {
-                return Err(CameraError::Timeout {
-                    camera,
-                    waited_ms: start.elapsed().as_millis() as u64,
-                });
-            }
-            Err(e) => {
-                return Err(CameraError::Device {
-                    camera,
-                    msg: e.to_string(),
-                });
-            }
-        };
-        let used = (meta.bytesused as usize).min(buf.len());
-        let data = decode(f, &buf[..used], w, h).map_err(|m| CameraError::Device {
-            camera: camera.clone(),
-            msg: m,
-        })?;
-        let sequence = meta.sequence;
-        if let Some(prev) = self.last_sequence
-            && sequence != prev.wrapping_add(1)
-        {
-            self.last_sequence = Some(sequence);
-            return Err(CameraError::LostFrame {
-                camera,
-                expected: prev.wrapping_add(1),
-                got: sequence,
-            });
-        }
-        self.last_sequence = Some(sequence);
-        Ok(Frame {
-            camera,
-            width: w,
-            height: h,
-            data,
-            sensor_time: timestamp(meta.timestamp.sec, meta.timestamp.usec),
-            sequence,
-            exposure_us: self.exposure_us,
-        })
+        self.frames.grab(deadline, &self.path)
     }
 
     fn close(&mut self) {
-        self.stream = None;
+        self.frames.queue.stop();
+        self.frames.armed = false;
     }
 }
 
@@ -488,6 +564,126 @@ mod tests {
         );
         assert_eq!(timestamp(12, 345_678), Duration::from_micros(12_345_678));
         assert_eq!(timestamp(-1, 0), Duration::ZERO);
+    }
+
+    /// The device layer faked: buffers with chosen sequence numbers, timeouts, errors.
+    struct FakeQueue {
+        buffers: std::collections::VecDeque<std::io::Result<(Vec<u8>, BufferMeta)>>,
+        starts: std::sync::Arc<std::sync::atomic::AtomicUsize>,
+    }
+
+    impl CaptureQueue for FakeQueue {
+        fn start(&mut self) -> std::io::Result<()> {
+            self.starts
+                .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            Ok(())
+        }
+        fn next(&mut self, _: Duration) -> std::io::Result<(Vec<u8>, BufferMeta)> {
+            self.buffers
+                .pop_front()
+                .unwrap_or_else(|| Err(std::io::ErrorKind::TimedOut.into()))
+        }
+        fn stop(&mut self) {}
+    }
+
+    fn grey(sequence: u32) -> std::io::Result<(Vec<u8>, BufferMeta)> {
+        Ok((
+            vec![7; 4],
+            BufferMeta {
+                sequence,
+                sec: 100,
+                usec: 500_000,
+            },
+        ))
+    }
+
+    fn stream(buffers: Vec<std::io::Result<(Vec<u8>, BufferMeta)>>) -> FrameStream {
+        FrameStream {
+            camera: "cam0".into(),
+            queue: Box::new(FakeQueue {
+                buffers: buffers.into(),
+                starts: Default::default(),
+            }),
+            armed: false,
+            format: (PixelFormat::Grey, 2, 2),
+            exposure_us: Some(800),
+            expected: 0,
+        }
+    }
+
+    #[test]
+    fn a_frame_lost_on_the_device_is_an_error() {
+        let path = Path::new("/dev/video9");
+        let soon = || Instant::now() + Duration::from_millis(50);
+        // one arming, several grabs: 0 and 1 arrive, 2 is lost
+        let mut s = stream(vec![grey(0), grey(1), grey(3), grey(4)]);
+        assert!(
+            s.grab(soon(), path)
+                .unwrap_err()
+                .to_string()
+                .contains("grab before arm")
+        );
+        s.arm().unwrap();
+        let f = s.grab(soon(), path).unwrap();
+        assert_eq!((f.sequence, f.width, f.exposure_us), (0, 2, Some(800)));
+        assert!(matches!(f.data, FrameData::Gray8(ref p) if p == &vec![7; 4]));
+        assert_eq!(s.grab(soon(), path).unwrap().sequence, 1);
+        match s.grab(soon(), path) {
+            Err(CameraError::LostFrame {
+                expected: 2,
+                got: 3,
+                ..
+            }) => {}
+            other => panic!("expected a lost frame, got {other:?}"),
+        }
+        // counting goes on from the frame that came
+        assert_eq!(s.grab(soon(), path).unwrap().sequence, 4);
+
+        // the case a session meets on hardware (arm, one grab): the triggered frame was
+        // dropped and a later one came; a fresh arming counts from 0 again
+        let mut s = stream(vec![grey(2), grey(0)]);
+        s.arm().unwrap();
+        match s.grab(soon(), path) {
+            Err(CameraError::LostFrame {
+                expected: 0,
+                got: 2,
+                ..
+            }) => {}
+            other => panic!("expected a lost frame, got {other:?}"),
+        }
+        s.arm().unwrap();
+        assert_eq!(s.grab(soon(), path).unwrap().sequence, 0);
+    }
+
+    #[test]
+    fn device_faults_are_named() {
+        let path = Path::new("/dev/video9");
+        let soon = || Instant::now() + Duration::from_millis(50);
+        let mut s = stream(vec![
+            Err(std::io::Error::other("No such device")),
+            Ok((
+                vec![1, 2],
+                BufferMeta {
+                    sequence: 0,
+                    sec: 0,
+                    usec: 0,
+                },
+            )),
+        ]);
+        s.arm().unwrap();
+        let e = s.grab(soon(), path).unwrap_err().to_string();
+        assert!(
+            e.contains("cam0") && e.contains("/dev/video9") && e.contains("No such device"),
+            "{e}"
+        );
+        // a short buffer is the device's fault, named, not a panic
+        let e = s.grab(soon(), path).unwrap_err().to_string();
+        assert!(e.contains("/dev/video9"), "{e}");
+        // nothing more queued: the time limit, not a hang
+        assert!(matches!(
+            s.grab(soon(), path),
+            Err(CameraError::Timeout { .. })
+        ));
     }
 
     #[test]
