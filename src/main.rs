@@ -129,7 +129,7 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
                     pb.finish_and_clear();
                     println!("{d}");
                     if keep_running {
-                        println!("the daemon keeps running; press Enter to stop it");
+                        println!("the daemon keeps running; press Enter or Ctrl-C to stop it");
                     }
                 },
                 &mut || keep_running && !stop.load(std::sync::atomic::Ordering::SeqCst),

@@ -639,3 +639,91 @@ fn placement_through_the_cli() {
     assert!(!out.status.success() && err.contains("--rig"), "{err}");
     assert!(!d.join("x.toml").exists());
 }
+
+/// Kills the spawned program if the test ends early, so no demo outlives it.
+struct Child(std::process::Child);
+
+impl Drop for Child {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+#[test]
+fn the_station_demo_stops_on_ctrl_c() {
+    // Ctrl-C once the demo's daemon runs (it owns SIGINT then): the demo says why it
+    // stopped and exits, leaving no worker behind
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("demo");
+    let mut child = Child(
+        Command::new(env!("CARGO_BIN_EXE_conformd"))
+            .args(["demo", "station", "--keep-running", "--out"])
+            .arg(&out)
+            .stdin(std::process::Stdio::piped())
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let t = std::time::Instant::now();
+    let listen = loop {
+        assert!(
+            t.elapsed().as_secs() < 300,
+            "the demo never started its daemon"
+        );
+        if let Ok(text) = std::fs::read_to_string(out.join("station.toml"))
+            && let Some(l) = text.lines().find_map(|l| l.strip_prefix("listen = "))
+        {
+            let addr = l.trim_matches('"').to_string();
+            if std::net::TcpStream::connect(&addr).is_ok() {
+                break addr;
+            }
+        }
+        assert!(
+            child.0.try_wait().unwrap().is_none(),
+            "the demo ended early"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(200));
+    };
+    assert!(listen.starts_with("127.0.0.1:"), "{listen}");
+    let pid = child.0.id().to_string();
+    assert!(
+        Command::new("kill")
+            .args(["-INT", &pid])
+            .status()
+            .unwrap()
+            .success()
+    );
+    let t = std::time::Instant::now();
+    let status = loop {
+        if let Some(s) = child.0.try_wait().unwrap() {
+            break s;
+        }
+        assert!(
+            t.elapsed().as_secs() < 60,
+            "the demo did not stop within 60 s of Ctrl-C"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(100));
+    };
+    let mut stderr = String::new();
+    std::io::Read::read_to_string(child.0.stderr.as_mut().unwrap(), &mut stderr).unwrap();
+    assert!(
+        !status.success(),
+        "an interrupted demo is not a finished one"
+    );
+    assert!(
+        stderr.contains("the daemon stopped (Ctrl-C or SIGTERM)"),
+        "{stderr}"
+    );
+    // nothing of this demo still runs (its workers name its station file)
+    let station = out.join("station.toml").display().to_string();
+    let left: Vec<String> = std::fs::read_dir("/proc")
+        .unwrap()
+        .flatten()
+        .filter_map(|e| std::fs::read(e.path().join("cmdline")).ok())
+        .map(|c| String::from_utf8_lossy(&c).replace('\0', " "))
+        .filter(|c| c.contains(&station))
+        .collect();
+    assert!(left.is_empty(), "left running: {left:?}");
+}

@@ -296,6 +296,11 @@ impl Handle {
         }
     }
 
+    /// Whether it still runs: it stops by itself on SIGINT and SIGTERM.
+    pub fn running(&self) -> bool {
+        self.thread.as_ref().is_some_and(|t| !t.is_finished())
+    }
+
     /// Stops it as SIGTERM would (drain) and waits.
     pub fn stop(mut self) -> Result<(), DaemonError> {
         if let Some(s) = self.stop.take() {

@@ -105,9 +105,21 @@ impl std::fmt::Display for StationDemo {
     }
 }
 
-fn wait(what: &str, limit: Duration, mut done: impl FnMut() -> bool) -> Result<(), JobError> {
+/// Waits until `done`, for at most `limit`; gives up at once when the daemon has stopped
+/// (it stops on Ctrl-C and SIGTERM, as a station's does).
+fn wait(
+    daemon: &Handle,
+    what: &str,
+    limit: Duration,
+    mut done: impl FnMut() -> bool,
+) -> Result<(), JobError> {
     let t = Instant::now();
     while !done() {
+        if !daemon.running() {
+            return Err(JobError::Usage(format!(
+                "demo: the daemon stopped (Ctrl-C or SIGTERM) while waiting for {what}"
+            )));
+        }
         if t.elapsed() > limit {
             return Err(JobError::Usage(format!(
                 "demo: waited {limit:?} for {what}"
@@ -120,7 +132,8 @@ fn wait(what: &str, limit: Duration, mut done: impl FnMut() -> bool) -> Result<(
 
 /// Runs the station demo in `out` (see the module comment): `progress(stage, done,
 /// total)` as it goes, `show` with the figures once everything is processed, then the
-/// daemon keeps serving its status page while `keep_running` returns true.
+/// daemon keeps serving its status page while `keep_running` returns true and no
+/// Ctrl-C or SIGTERM has stopped it.
 pub fn demo_station(
     out: &Path,
     progress: &mut dyn FnMut(&str, u64, u64),
@@ -195,7 +208,7 @@ pub fn demo_station(
     let t = Instant::now();
     let daemon = Handle::spawn(cfg, None)?;
     let shared = daemon.shared.clone();
-    wait("the trigger box", Duration::from_secs(20), || {
+    wait(&daemon, "the trigger box", Duration::from_secs(20), || {
         shared
             .rig
             .lock()
@@ -205,12 +218,13 @@ pub fn demo_station(
     let n = POSTURES.len() as u64;
     for i in 0..n {
         trigger.rfid(&format!("pig-{:02}", i + 1));
-        wait("a capture", Duration::from_secs(60), || {
+        wait(&daemon, "a capture", Duration::from_secs(60), || {
             shared.rig.lock().map(|r| r.captures > i).unwrap_or(false)
         })?;
     }
     let mut last = u64::MAX;
     wait(
+        &daemon,
         "every capture to be processed",
         Duration::from_secs(1800),
         || {
@@ -224,7 +238,7 @@ pub fn demo_station(
         },
     )?;
     crate::daemon::request_model_rebuild(&shared);
-    wait("the model", Duration::from_secs(300), || {
+    wait(&daemon, "the model", Duration::from_secs(300), || {
         !shared.model_busy.load(Ordering::SeqCst)
     })?;
     let seconds_station = t.elapsed().as_secs_f64();
@@ -282,7 +296,8 @@ pub fn demo_station(
         explained: model.map(|m| m.explained).unwrap_or_default(),
     };
     show(&demo);
-    while keep_running() {
+    // until the caller says stop, or a signal has stopped the daemon
+    while keep_running() && daemon.running() {
         std::thread::sleep(Duration::from_millis(200));
     }
     drop(shared);
