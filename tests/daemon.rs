@@ -382,6 +382,28 @@ fn captures_fired_through_the_box_are_processed_and_the_api_agrees() {
         assert!(rel < 0.01, "{id}: mean distance {rel}");
         let (code, png) = daemon.get(&format!("/api/captures/{id}/preview.png"));
         assert!(code == 200 && png.len() > 1000);
+        // the capture page: stage timings as a table in seconds, the total last, and
+        // downloads that answer
+        let (code, page) = daemon.get(&format!("/captures/{id}"));
+        assert_eq!(code, 200);
+        let stages = page
+            .split("<table class=\"stages\">")
+            .nth(1)
+            .and_then(|t| t.split("</table>").next())
+            .unwrap_or_else(|| panic!("{id}: no stage table in {page}"));
+        assert!(
+            stages.contains("<td>conform</td>") && stages.ends_with(" s</td></tr>"),
+            "{stages}"
+        );
+        assert!(
+            stages.rfind("total") > stages.rfind("reconstruct"),
+            "{stages}"
+        );
+        assert!(!page.contains("{\""), "raw JSON on the page: {page}");
+        for file in ["conformed.ply", "scan.ply", "report.json"] {
+            let (code, body) = daemon.get(&format!("/api/captures/{id}/{file}"));
+            assert!(code == 200 && body.len() > 100, "{id}/{file}: {code}");
+        }
     }
     let mut j = journal(d);
     assert_eq!(j.counts().unwrap().done, 5);

@@ -646,9 +646,9 @@ async fn capture_page(Ctx(shared): Ctx<Arc<Shared>>, Path(id): Path<String>) -> 
         if let Some(w) = c["distortion_warning"].as_str() {
             row("warning", esc(w));
         }
-        row("seconds", esc(&r["seconds"].to_string()));
+        row("seconds", stage_table(&r["seconds"]));
         if let Some(s) = r.get("scores").filter(|s| !s.is_null()) {
-            row("model scores (sd)", esc(&s["scores_sd"].to_string()));
+            row("model scores", mode_scores(&s["scores_sd"]));
         }
         if let Some(w) = r.get("weight").filter(|w| !w.is_null()) {
             row(
@@ -678,6 +678,37 @@ async fn capture_page(Ctx(shared): Ctx<Arc<Shared>>, Path(id): Path<String>) -> 
     }
     h.push_str("</body></html>");
     Ok(Html(h))
+}
+
+/// A report's stage seconds (`{"read": 0.1, ...}`) as a small table, the total last.
+fn stage_table(seconds: &serde_json::Value) -> String {
+    let Some(stages) = seconds.as_object() else {
+        return String::new();
+    };
+    let mut rows: Vec<(&String, f64)> = stages
+        .iter()
+        .filter_map(|(k, v)| v.as_f64().map(|v| (k, v)))
+        .collect();
+    rows.sort_by_key(|(k, _)| *k == "total");
+    let mut h = String::from("<table class=\"stages\">");
+    for (k, v) in rows {
+        let _ = write!(h, "<tr><td>{}</td><td>{v:.2} s</td></tr>", esc(k));
+    }
+    h.push_str("</table>");
+    h
+}
+
+/// Mode scores in standard deviations, one per mode: "mode 1: +0.52 sd, ...".
+fn mode_scores(sd: &serde_json::Value) -> String {
+    sd.as_array()
+        .map(|a| {
+            a.iter()
+                .enumerate()
+                .map(|(i, z)| format!("mode {}: {:+.2} sd", i + 1, z.as_f64().unwrap_or(f64::NAN)))
+                .collect::<Vec<_>>()
+                .join(", ")
+        })
+        .unwrap_or_default()
 }
 
 /// A link to a subject's page (an RFID tag or the id a trigger named).
