@@ -838,8 +838,9 @@ async fn subject_plot(Ctx(shared): Ctx<Arc<Shared>>, Path(tag): Path<String>) ->
         }
     }
     let title = format!("subject {tag}");
+    let since = when(Some(t0));
     let png = tokio::task::spawn_blocking(move || {
-        crate::render::plot::history_png(&title, &series, 900, 700)
+        crate::render::plot::history_png(&title, &since, &series, 900, 700)
     })
     .await
     .map_err(internal)?

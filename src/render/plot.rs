@@ -31,16 +31,47 @@ fn font() -> bool {
     })
 }
 
+/// The time axis for a history spanning `span_days`: the factor from days and its unit,
+/// so that an afternoon reads in hours, a season in days and a year in months (one
+/// result alone reads in hours around it).
+pub fn time_axis(span_days: f64) -> (f64, &'static str) {
+    if !(span_days >= 2.0) {
+        (24.0, "hours")
+    } else if span_days < 180.0 {
+        (1.0, "days")
+    } else {
+        (12.0 / 365.25, "months")
+    }
+}
+
 /// A PNG of panels stacked top to bottom, one per unit (kg, m, m^3 ...), each with its
-/// series as lines with points; `title` above.
+/// series as lines with points; `title` above. The x axis is time since `since` (a
+/// date, shown in the axis label) in hours, days or months as the span needs.
 pub fn history_png(
     title: &str,
+    since: &str,
     series: &[Series],
     width: u32,
     height: u32,
 ) -> Result<Vec<u8>, String> {
+    let (lo, hi) = series
+        .iter()
+        .flat_map(|s| &s.points)
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| {
+            (a.min(p.0), b.max(p.0))
+        });
+    let (factor, time_unit) = time_axis(hi - lo);
+    let series: Vec<Series> = series
+        .iter()
+        .map(|s| Series {
+            name: s.name.clone(),
+            unit: s.unit.clone(),
+            points: s.points.iter().map(|&(x, y)| (x * factor, y)).collect(),
+        })
+        .collect();
+    let x_desc = format!("{time_unit} since {since}");
     let mut units: Vec<&str> = Vec::new();
-    for s in series {
+    for s in &series {
         if !units.contains(&s.unit.as_str()) {
             units.push(&s.unit);
         }
@@ -88,7 +119,7 @@ pub fn history_png(
                 .map_err(|e| e.to_string())?;
             let mut mesh = chart.configure_mesh();
             if text {
-                mesh.x_desc("days").y_desc(*unit);
+                mesh.x_desc(x_desc.as_str()).y_desc(*unit);
             } else {
                 mesh.disable_x_axis().disable_y_axis();
             }
@@ -121,4 +152,31 @@ pub fn history_png(
     }
     let img = image::RgbImage::from_raw(width, height, buf).ok_or("plot buffer size")?;
     Ok(super::png_bytes(&img))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_time_axis_follows_the_span() {
+        assert_eq!(time_axis(0.0), (24.0, "hours"));
+        assert_eq!(time_axis(0.3).1, "hours");
+        assert_eq!(time_axis(f64::NAN).1, "hours");
+        assert_eq!(time_axis(14.0), (1.0, "days"));
+        assert_eq!(time_axis(400.0).1, "months");
+        // one point, and months of data, both draw
+        let one = Series {
+            name: "weight".into(),
+            unit: "kg".into(),
+            points: vec![(0.0, 101.5)],
+        };
+        assert!(history_png("t", "2026-12-03", &[one], 300, 200).is_ok());
+        let year = Series {
+            name: "weight".into(),
+            unit: "kg".into(),
+            points: (0..40).map(|d| (d as f64 * 9.0, 20.0 + d as f64)).collect(),
+        };
+        assert!(history_png("t", "2026-01-01", &[year], 300, 200).is_ok());
+    }
 }
