@@ -229,6 +229,7 @@ fn generic(opts: &ConformOptions, only: &[&str], pictures: Option<&std::path::Pa
                         .iter()
                         .map(|p| surface.nearest_point(p).1)
                         .collect(),
+                    "MESH UNITS",
                 );
                 let img = render::render(&r.mesh, &colour, &RenderOptions::default());
                 render::save_png(&img, &dir.join(format!("{stem}.png"))).expect("picture");

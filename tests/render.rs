@@ -66,8 +66,15 @@ fn cli_renders_a_png_and_colours_by_distance() {
     let dir = tempfile::tempdir().unwrap();
     let fig = templates::build(Kind::Body, 2500);
     conformd::mesh::write_mesh(&dir.path().join("body.obj"), &fig.mesh).unwrap();
-    let mut scan = fig.mesh.clone();
-    scan.vertices.iter_mut().for_each(|p| p.x += 0.01);
+    // the scan: only the body above the hips, so the legs lie far from it
+    let upper: Vec<_> = fig
+        .mesh
+        .vertices
+        .iter()
+        .filter(|p| p.z > 0.95)
+        .map(|p| p + conformd::mesh::V3::new(0.01, 0.0, 0.0))
+        .collect();
+    let scan = conformd::mesh::Mesh::new(upper, vec![]);
     conformd::mesh::write_mesh(&dir.path().join("scan.ply"), &scan).unwrap();
     let bin = env!("CARGO_BIN_EXE_conformd");
     let out = std::process::Command::new(bin)
@@ -93,6 +100,29 @@ fn cli_renders_a_png_and_colours_by_distance() {
     assert_eq!(img.dimensions(), (800, 600));
     let (share, _) = coverage(&img, [250, 250, 250]);
     assert!(share > 0.03, "{share}");
+    // far vertices get the far colour: in the front view (the left panel), the legs are
+    // yellow-green (green well over blue), the chest purple-blue (blue over green)
+    let panel = (800 - 90) / 2;
+    let body: Vec<(u32, [u8; 3])> = img
+        .enumerate_pixels()
+        .filter(|(x, _, p)| *x < panel && p.0 != [250, 250, 250])
+        .map(|(_, y, p)| (y, p.0))
+        .collect();
+    let (top, bottom) = body
+        .iter()
+        .fold((u32::MAX, 0), |(a, b), (y, _)| (a.min(*y), b.max(*y)));
+    let green_over_blue = |from: f64, to: f64| {
+        let rows = |f: f64| top + ((bottom - top) as f64 * f) as u32;
+        let band: Vec<f64> = body
+            .iter()
+            .filter(|(y, _)| *y >= rows(from) && *y < rows(to))
+            .map(|(_, c)| c[1] as f64 - c[2] as f64)
+            .collect();
+        band.iter().sum::<f64>() / band.len().max(1) as f64
+    };
+    let (chest, legs) = (green_over_blue(0.15, 0.35), green_over_blue(0.75, 0.95));
+    eprintln!("green over blue: legs {legs:.0}, chest {chest:.0}");
+    assert!(legs > 40.0 && chest < 0.0, "legs {legs}, chest {chest}");
     let out = std::process::Command::new(bin)
         .args(["render", "body.obj", "--views", "below", "--out", "c.png"])
         .current_dir(dir.path())

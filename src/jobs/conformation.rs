@@ -225,7 +225,7 @@ pub fn demo_paper(
                 values,
                 min: 0.0,
                 max,
-                unit: "TO BOX".into(),
+                unit: "DISTANCE\nTO BOX".into(),
             },
             &crate::render::RenderOptions {
                 views,

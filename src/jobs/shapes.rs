@@ -134,7 +134,10 @@ pub fn render(
             let s = mesh::read_mesh(scan)?;
             let surface = conform::correspond::ScanSurface::new(&s)
                 .map_err(|e| JobError::Usage(format!("{}: {e}", scan.display())))?;
-            Colouring::distances(m.vertices.iter().map(|p| surface.distance(p)).collect())
+            Colouring::distances(
+                m.vertices.iter().map(|p| surface.distance(p)).collect(),
+                "MESH UNITS",
+            )
         }
     };
     let img = render::render(

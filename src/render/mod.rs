@@ -43,7 +43,7 @@ pub enum Colouring {
     /// each named group its own colour (a vertex in several takes the first)
     Groups,
     /// one value per vertex mapped through a colour map over [min, max], with a colour
-    /// bar labelled with the range and `unit`
+    /// bar labelled with the range and `unit` (up to two lines, 10 characters each)
     Values {
         values: Vec<f64>,
         min: f64,
@@ -53,8 +53,9 @@ pub enum Colouring {
 }
 
 impl Colouring {
-    /// Distances (one per vertex) on a colour map from 0 to the largest.
-    pub fn distances(values: Vec<f64>) -> Colouring {
+    /// Distances (one per vertex) on a colour map from 0 to the largest, the bar
+    /// labelled "DISTANCE" over `unit` (e.g. "MM", "MESH UNITS").
+    pub fn distances(values: Vec<f64>, unit: &str) -> Colouring {
         let max = values
             .iter()
             .cloned()
@@ -64,7 +65,7 @@ impl Colouring {
             values,
             min: 0.0,
             max,
-            unit: "DISTANCE".into(),
+            unit: format!("DISTANCE\n{unit}"),
         }
     }
 }
@@ -271,7 +272,8 @@ fn draw_colour_bar(img: &mut RgbImage, x0: u32, w: u32, h: u32, min: f64, max: f
     if w < 20 || h < 60 {
         return;
     }
-    let (top, bottom) = (30u32, h - 30);
+    // room below the bar for two lines of its label (what, then the unit)
+    let (top, bottom) = (30u32, h - 44);
     let (bx0, bx1) = (x0 + 10, x0 + 30.min(w - 4));
     for y in top..bottom {
         // the top row shows the maximum, the bottom row the minimum, exactly
@@ -290,7 +292,9 @@ fn draw_colour_bar(img: &mut RgbImage, x0: u32, w: u32, h: u32, min: f64, max: f
     };
     font::draw(img, bx1 + 4, top, &label(max), [30, 30, 30], 2);
     font::draw(img, bx1 + 4, bottom - 10, &label(min), [30, 30, 30], 2);
-    font::draw(img, bx0, bottom + 8, unit, [30, 30, 30], 2);
+    for (k, line) in unit.lines().take(2).enumerate() {
+        font::draw(img, bx0, bottom + 8 + 16 * k as u32, line, [30, 30, 30], 2);
+    }
 }
 
 /// An image (grey, 16-bit grey or colour) encoded as PNG in memory.

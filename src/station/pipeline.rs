@@ -721,12 +721,14 @@ pub fn read_pod_images(
 pub fn preview(conformed: &Mesh, scan: &Mesh) -> image::RgbImage {
     use crate::render::{Colouring, RenderOptions, View};
     let colouring = match crate::conform::correspond::ScanSurface::new(scan) {
+        // the station works in metres; a fit's distances read in millimetres
         Ok(surface) => Colouring::distances(
             conformed
                 .vertices
                 .iter()
-                .map(|p| surface.distance(p))
+                .map(|p| surface.distance(p) * 1000.0)
                 .collect(),
+            "MM",
         ),
         Err(_) => Colouring::Plain,
     };
