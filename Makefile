@@ -40,12 +40,12 @@ build: deps
 # dependencies are checked once.
 lint: deps
 	$(CARGO) fmt --check
-	$(CARGO) clippy --locked --profile ci --all-targets -- -D warnings
+	$(CARGO) clippy --locked --profile ci --all-targets --features test-hooks -- -D warnings
 
 # Lint, then every test, compiled once: the `ci` profile optimises (the known-answer
 # tests are heavy) and keeps debug assertions and overflow checks on.
 test: test-deps lint
-	$(CARGO) test --locked --profile ci
+	$(CARGO) test --locked --profile ci --features test-hooks
 	@$(MAKE) --no-print-directory verify-unit
 
 # systemd-analyze verify on the units (where systemd is), pointing at the binary just built.
@@ -61,7 +61,7 @@ verify-unit:
 
 # On a station with cameras: the test that needs a real V4L2 device (ignored by `test`).
 test-hardware: deps
-	$(CARGO) test --locked --profile ci --test v4l2_hardware -- --ignored
+	$(CARGO) test --locked --profile ci --features test-hooks --test v4l2_hardware -- --ignored
 
 demo: deps
 	$(CARGO) run --locked --release -- demo --out $(DEMO_OUT)

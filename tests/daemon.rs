@@ -616,6 +616,10 @@ fn the_same_burst_without_watcher_events_is_found_by_the_rescans() {
 }
 
 #[test]
+#[cfg_attr(
+    not(feature = "test-hooks"),
+    ignore = "needs the test hooks: cargo test --features test-hooks (make test)"
+)]
 fn corrupt_sets_fail_with_their_reason_and_a_crashing_job_does_not_stop_the_daemon() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();

@@ -141,6 +141,10 @@ fn process_gives_what_reconstruct_then_conform_give() {
 /// result folder is whole or absent, and the leftovers are hidden folders that
 /// `remove_partial_results` clears. A last run completes.
 #[test]
+#[cfg_attr(
+    not(feature = "test-hooks"),
+    ignore = "needs the test hooks: cargo test --features test-hooks (make test)"
+)]
 fn a_killed_process_leaves_no_partial_result() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();

@@ -19,8 +19,10 @@ pub fn exit_with_parent(pid: u32) {
     });
 }
 
-/// Test hook for the daemon's crash tests: a worker whose capture folder is named in
-/// `CONFORMD_TEST_CRASH` aborts (SIGABRT), as a crash inside OpenCV would.
+/// Test hook for the daemon's crash tests (feature `test-hooks` only): a worker whose
+/// capture folder is named in `CONFORMD_TEST_CRASH` aborts (SIGABRT), as a crash inside
+/// OpenCV would.
+#[cfg(feature = "test-hooks")]
 pub fn crash_hook(capture: &Path) {
     if let (Ok(name), Some(dir)) = (std::env::var("CONFORMD_TEST_CRASH"), capture.file_name())
         && dir.to_string_lossy() == name
@@ -28,3 +30,6 @@ pub fn crash_hook(capture: &Path) {
         std::process::abort();
     }
 }
+
+#[cfg(not(feature = "test-hooks"))]
+pub fn crash_hook(_: &Path) {}

@@ -372,9 +372,15 @@ pub fn remove_partial_results(results: &Path) -> std::io::Result<usize> {
 }
 
 /// Crash-safety tests kill a process while it writes a result; this environment
-/// variable (milliseconds) widens the window between files so the kill lands inside it.
+/// variable (milliseconds) widens the window between files so the kill lands inside it
+/// (feature `test-hooks` only).
+#[cfg(feature = "test-hooks")]
 const PAUSE_ENV: &str = "CONFORMD_TEST_PAUSE_WRITE_MS";
 
+#[cfg(not(feature = "test-hooks"))]
+fn pause_for_crash_tests() {}
+
+#[cfg(feature = "test-hooks")]
 fn pause_for_crash_tests() {
     if let Some(ms) = std::env::var(PAUSE_ENV)
         .ok()
