@@ -713,7 +713,7 @@ fn the_station_demo_stops_on_ctrl_c() {
         "an interrupted demo is not a finished one"
     );
     assert!(
-        stderr.contains("the daemon stopped (Ctrl-C or SIGTERM)"),
+        stderr.contains("the daemon stopped (Ctrl-C, SIGTERM"),
         "{stderr}"
     );
     // nothing of this demo still runs (its workers name its station file)

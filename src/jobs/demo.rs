@@ -117,7 +117,7 @@ fn wait(
     while !done() {
         if !daemon.running() {
             return Err(JobError::Usage(format!(
-                "demo: the daemon stopped (Ctrl-C or SIGTERM) while waiting for {what}"
+                "demo: the daemon stopped (Ctrl-C, SIGTERM, or an error logged above) while waiting for {what}"
             )));
         }
         if t.elapsed() > limit {

@@ -96,7 +96,8 @@ pub fn marks_of(mesh_name: &str) -> Result<Vec<(String, u32)>, String> {
         other => other,
     };
     let path = devset::data_dir().join(format!("{stem}.marks"));
-    let bytes = std::fs::read(&path).map_err(|e| format!("{}: {e}", path.display()))?;
+    let bytes = crate::files::read_limited(&path, crate::files::MAX_TABLE_BYTES)
+        .map_err(|e| e.to_string())?;
     landmarks::parse_text(&path.display().to_string(), &bytes)
         .map_err(|e| e.to_string())?
         .into_iter()
