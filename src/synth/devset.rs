@@ -262,13 +262,7 @@ pub fn case_onto(template: &Mesh, subject: &Mesh, spec: &DevCaseSpec) -> Case {
     let (truth, ext) = posed(subject, spec, template.diagonal(), &mut rng);
     let diag = template.diagonal();
     let subject = Mesh::new(truth.clone(), template.triangles.clone());
-    let (scan, in_hole) = scan_subject(
-        &subject,
-        &[0.0, 90.0, 180.0, 270.0],
-        spec.scan_points,
-        spec.noise,
-        spec.seed,
-    );
+    let (scan, in_hole) = scan_as_spec_says(&subject, spec);
     let picked: Vec<u32> = ext
         .samples
         .iter()
@@ -285,6 +279,18 @@ pub fn case_onto(template: &Mesh, subject: &Mesh, spec: &DevCaseSpec) -> Case {
         truth: Some(truth),
         in_hole,
     }
+}
+
+/// The posed subject seen as the set sees every case: four cameras around and one
+/// above, `spec`'s points and noise; the scan and which vertices it missed.
+pub(crate) fn scan_as_spec_says(posed: &Mesh, spec: &DevCaseSpec) -> (Mesh, Vec<bool>) {
+    scan_subject(
+        posed,
+        &[0.0, 90.0, 180.0, 270.0],
+        spec.scan_points,
+        spec.noise,
+        spec.seed,
+    )
 }
 
 /// The subject posed as `spec` says (its limbs turned, bent, twisted, scaled), then

@@ -4,7 +4,6 @@
 //! on both: the template's own named landmarks, and the same points marked on the outside
 //! mesh (`tests/data/meshes/*.marks`, how they were placed in `tests/data/README.md`).
 
-use super::cases::scan_subject;
 use super::devset::{self, DevCaseSpec, Part, large_posture, posed};
 use crate::mesh::landmarks::{self, LandmarkPos};
 use crate::mesh::{Mesh, V3};
@@ -153,13 +152,7 @@ pub fn generic_cases(part: Part, names: &[&str]) -> Result<Vec<SemanticCase>, St
             let mut rng = ChaCha8Rng::seed_from_u64(spec.seed);
             let (truth, _) = posed(&subject, &spec, subject.diagonal(), &mut rng);
             let posed_mesh = Mesh::new(truth.clone(), subject.triangles.clone());
-            let (scan, _) = scan_subject(
-                &posed_mesh,
-                &[0.0, 90.0, 180.0, 270.0],
-                spec.scan_points,
-                spec.noise,
-                spec.seed,
-            );
+            let (scan, _) = devset::scan_as_spec_says(&posed_mesh, &spec);
             let marks: Vec<Mark> = marks
                 .iter()
                 .map(|(name, v)| {
