@@ -339,6 +339,11 @@ async fn serve(
             cfg.file.display()
         )));
     }
+    // owned before the port is bound: a Ctrl-C once the page answers must drain, not kill
+    let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
+        .map_err(io_err(Path::new("SIGTERM")))?;
+    let mut int = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::interrupt())
+        .map_err(io_err(Path::new("SIGINT")))?;
     for d in [
         cfg.station.captures(),
         cfg.station.incoming(),
@@ -412,10 +417,6 @@ async fn serve(
     };
     tokio::pin!(stop_requested);
 
-    let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
-        .map_err(io_err(Path::new("SIGTERM")))?;
-    let mut int = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::interrupt())
-        .map_err(io_err(Path::new("SIGINT")))?;
     let mut rescan = tokio::time::interval(Duration::from_secs_f64(shared.cfg.daemon.rescan_s));
     // pings at under half the watchdog interval, only from this loop: a stuck loop stops them
     let watchdog_every = sd_notify::watchdog_enabled()
