@@ -210,11 +210,37 @@ fn generic(opts: &ConformOptions, only: &[&str], pictures: Option<&std::path::Pa
     );
     let mut sum = 0.0;
     let mut n = 0;
-    for part in [devset::Part::Development, devset::Part::Validation] {
-        for c in semantic::generic_cases(part, only).expect("generic cases") {
+    // `--front`: the station also knows which way the subject faces
+    let with_front = std::env::args().any(|a| a == "--front");
+    // `--turns 0,90,180,270`: every subject also turned to these headings
+    let turns: Vec<f64> = std::env::args()
+        .skip_while(|a| a != "--turns")
+        .nth(1)
+        .map(|v| {
+            v.split(',')
+                .map(|t| t.parse().expect("--turns: degrees"))
+                .collect()
+        })
+        .unwrap_or_else(|| vec![0.0]);
+    let parts: Vec<devset::Part> = match std::env::args().skip_while(|a| a != "--part").nth(1) {
+        Some(p) if p == "dev" => vec![devset::Part::Development],
+        Some(p) if p == "validation" => vec![devset::Part::Validation],
+        _ => vec![devset::Part::Development, devset::Part::Validation],
+    };
+    let cases = parts.iter().flat_map(|&part| {
+        turns.iter().flat_map(move |&t| {
+            semantic::generic_cases_turned(part, only, t).expect("generic cases")
+        })
+    });
+    {
+        for c in cases {
             let t = Instant::now();
-            let r = conform(&c.template, &c.scan, None, &c.options(opts), &mut |_| {})
-                .expect("conforms");
+            let o = if with_front {
+                c.options_with_front(opts)
+            } else {
+                c.options(opts)
+            };
+            let r = conform(&c.template, &c.scan, None, &o, &mut |_| {}).expect("conforms");
             let secs = t.elapsed().as_secs_f64();
             let s = c.score(&r.mesh.vertices);
             if let Some(dir) = pictures {

@@ -377,4 +377,24 @@ fn bad_options_are_named() {
     o.stiffness.insert("ears".into(), 3.0);
     let e = err_of(conform(&sphere, &sphere, None, &o, &mut |_| {}));
     assert!(e.contains("group 'ears'"), "{e}");
+    // a front hint means nothing without the other half, nor with no room to face
+    let mut o = ConformOptions::default();
+    o.align.scan_front = Some([1.0, 0.0, 0.0]);
+    let e = err_of(conform(&sphere, &sphere, None, &o, &mut |_| {}));
+    assert!(
+        e.contains("template_front") && e.contains("go together"),
+        "{e}"
+    );
+    o.align.template_front = Some([f64::NAN, 0.0, 0.0]);
+    let e = err_of(conform(&sphere, &sphere, None, &o, &mut |_| {}));
+    assert!(
+        e.contains("align.template_front") && e.contains("finite"),
+        "{e}"
+    );
+    o.align.template_front = Some([1.0, 0.0, 0.0]);
+    for bad in [0.0, 181.0, f64::NAN] {
+        o.align.front_within_deg = bad;
+        let e = err_of(conform(&sphere, &sphere, None, &o, &mut |_| {}));
+        assert!(e.contains("front_within_deg"), "{bad}: {e}");
+    }
 }

@@ -542,6 +542,85 @@ fn generic_templates_onto_outside_subjects_hold_per_case() {
     assert!(failures.is_empty(), "{failures:#?}");
 }
 
+/// Which way a result faces: from the template's heel marks to its toe marks, level.
+fn result_front(
+    c: &conformd::synth::semantic::SemanticCase,
+    x: &[conformd::mesh::V3],
+) -> conformd::mesh::V3 {
+    let at = |prefix: &str| {
+        let p: Vec<_> = c
+            .marks
+            .iter()
+            .filter(|m| m.name.starts_with(prefix))
+            .map(|m| x[m.vertex as usize])
+            .collect();
+        p.iter().sum::<conformd::mesh::V3>() / p.len() as f64
+    };
+    let f = at("toe_") - at("heel_");
+    conformd::mesh::V3::new(f.x, f.y, 0.0).normalize()
+}
+
+#[test]
+fn a_person_facing_the_other_way_is_fitted_facing_that_way() {
+    // the man in the large posture turned round (development): front and back of a body
+    // stretch the springs alike, so the heading is told by the share of the template left
+    // without a match (feet, face, an arm where no scan faces them). Before: fitted
+    // backwards, mean 27.8%; measured 7.31% (a hand on another limb), bound at 1.25x
+    use conformd::synth::semantic;
+    let c = semantic::generic_cases_turned(devset::Part::Development, &["human"], 180.0)
+        .unwrap()
+        .into_iter()
+        .find(|c| c.name.contains("large posture"))
+        .unwrap();
+    let r = conform(
+        &c.template,
+        &c.scan,
+        None,
+        &c.options(&ConformOptions::default()),
+        &mut |_| {},
+    )
+    .unwrap();
+    let facing = result_front(&c, &r.mesh.vertices).dot(&c.front);
+    let s = c.score(&r.mesh.vertices);
+    eprintln!(
+        "{}: faces {facing:.2} of the way, mean {:.3}%",
+        c.name,
+        s.mean * 100.0
+    );
+    assert!(facing > 0.7, "fitted facing away: {facing}");
+    assert!(s.mean < 0.0914, "{}", s.mean);
+}
+
+#[test]
+fn a_station_that_knows_the_front_fits_the_person_facing_it() {
+    // validation (never tuned on): the woman in the large posture is fitted backwards
+    // with the up axis alone (26.8%); with `[align] template_front`/`scan_front` it faces
+    // the right way: measured 6.96% (one hand still on the other arm), bound at 1.25x
+    use conformd::synth::semantic;
+    let c = semantic::generic_cases(devset::Part::Validation, &["woman"])
+        .unwrap()
+        .into_iter()
+        .find(|c| c.name.contains("large posture"))
+        .unwrap();
+    let o = c.options_with_front(&ConformOptions::default());
+    let r = conform(&c.template, &c.scan, None, &o, &mut |_| {}).unwrap();
+    let facing = result_front(&c, &r.mesh.vertices).dot(&c.front);
+    let s = c.score(&r.mesh.vertices);
+    eprintln!(
+        "{}: faces {facing:.2} of the way, mean {:.3}%",
+        c.name,
+        s.mean * 100.0
+    );
+    assert!(facing > 0.7, "fitted facing away: {facing}");
+    assert!(s.mean < 0.087, "{}", s.mean);
+    match &r.report.global {
+        conformd::conform::GlobalReport::Automatic(a) => {
+            assert_eq!(a.fitted, 1, "the front leaves one heading to fit")
+        }
+        other => panic!("{other:?}"),
+    }
+}
+
 #[test]
 fn semantic_scoring_sees_a_swapped_limb() {
     // the score itself: the truth scores 0; a result with the two front hooves' template

@@ -1,7 +1,8 @@
 //! Automatic global alignment when the scan has no landmarks (an unattended station):
 //! a similarity from centroids and principal axes, the axis-sign ambiguity resolved by
 //! trying every proper candidate, each refined by trimmed ICP; the best fit wins. Up-axis
-//! hints, when given, rule out candidates that turn the template upside down.
+//! hints, when given, rule out candidates that turn the template upside down; front hints
+//! (the crate's head end, the booth's front camera) rule out those that face it away.
 
 use super::correspond::ScanSurface;
 use crate::mesh::V3;
@@ -17,6 +18,14 @@ pub struct AlignOptions {
     pub template_up: Option<[f64; 3]>,
     /// the up axis of the scan (the rig's up), in scan coordinates
     pub scan_up: Option<[f64; 3]>,
+    /// the way the template faces (its head or face), in template coordinates
+    pub template_front: Option<[f64; 3]>,
+    /// the way the subject faces on the rig (towards the crate's head gate, the booth's
+    /// front camera), in scan coordinates
+    pub scan_front: Option<[f64; 3]>,
+    /// how far, in degrees, the subject may face from `scan_front` (about the up axis when
+    /// it is known); 90 only settles front against back
+    pub front_within_deg: f64,
     /// ICP iterations per candidate
     pub icp_iterations: usize,
     /// share of scan samples kept by the trimmed ICP (0.5 - 1)
@@ -31,6 +40,9 @@ impl Default for AlignOptions {
         AlignOptions {
             template_up: None,
             scan_up: None,
+            template_front: None,
+            scan_front: None,
+            front_within_deg: 90.0,
             icp_iterations: 40,
             trim: 0.85,
             limbs: 10,
@@ -113,38 +125,62 @@ pub fn auto_align(
         (Some(a), Some(b)) => Some((V3::from(a).normalize(), V3::from(b).normalize())),
         _ => None,
     };
-    let mut results: Vec<(f64, Similarity)> = Vec::new();
-    for signs in [[1., 1., 1.], [1., -1., -1.], [-1., 1., -1.], [-1., -1., 1.]] {
-        let d = Matrix3::from_diagonal(&V3::from(signs));
-        let r = Rotation3::from_matrix_unchecked(fs * d * ft.transpose());
-        if let Some((tu, su)) = up
-            && (r * tu).dot(&su) < 0.0
-        {
-            continue;
-        }
-        let init = Similarity {
-            scale: scale0,
-            rotation: r,
-            translation: cs - r * ct * scale0,
-        };
-        let quick = AlignOptions {
-            icp_iterations: opts.icp_iterations / 2,
-            ..opts.clone()
-        };
-        results.push(icp(&tree, template, &samples, init, &quick, scan.diagonal));
+    let front = match (opts.template_front, opts.scan_front) {
+        (Some(a), Some(b)) => Some((V3::from(a).normalize(), V3::from(b).normalize())),
+        _ => None,
+    };
+    // the front is compared about the up axis when it is known (a subject leaning or
+    // nodding still faces the same way)
+    let level = |v: V3| match up {
+        Some((_, su)) => v - su * v.dot(&su),
+        None => v,
+    };
+    let faces_front = |r: &Rotation3<f64>| {
+        front.is_none_or(|(tf, sf)| {
+            let (a, b) = (level(r * tf), level(sf));
+            let cos = a.dot(&b) / (a.norm() * b.norm());
+            // a front along the up axis says nothing about the heading
+            !cos.is_finite() || cos >= opts.front_within_deg.to_radians().cos() - 1e-9
+        })
+    };
+    let quick = AlignOptions {
+        icp_iterations: opts.icp_iterations / 2,
+        ..opts.clone()
+    };
+    let signs = [[1., 1., 1.], [1., -1., -1.], [-1., 1., -1.], [-1., -1., 1.]];
+    let candidates: Vec<Rotation3<f64>> = signs
+        .iter()
+        .map(|s| {
+            Rotation3::from_matrix_unchecked(
+                fs * Matrix3::from_diagonal(&V3::from(*s)) * ft.transpose(),
+            )
+        })
+        .collect();
+    let upright = |r: &&Rotation3<f64>| up.is_none_or(|(tu, su)| (*r * tu).dot(&su) >= 0.0);
+    // hints exclude everything only if they contradict the data: the front goes first,
+    // then the up axis
+    let mut kept: Vec<&Rotation3<f64>> = candidates
+        .iter()
+        .filter(upright)
+        .filter(|r| faces_front(r))
+        .collect();
+    if kept.is_empty() {
+        kept = candidates.iter().filter(upright).collect();
     }
-    if results.is_empty() {
-        // hints exclude everything only if they contradict the data; fall back to all
-        return auto_align(
-            template,
-            scan,
-            &AlignOptions {
-                template_up: None,
-                scan_up: None,
-                ..opts.clone()
-            },
-        );
+    if kept.is_empty() {
+        kept = candidates.iter().collect();
     }
+    let mut results: Vec<(f64, Similarity)> = kept
+        .into_iter()
+        .map(|&r| {
+            let init = Similarity {
+                scale: scale0,
+                rotation: r,
+                translation: cs - r * ct * scale0,
+            };
+            icp(&tree, template, &samples, init, &quick, scan.diagonal)
+        })
+        .collect();
     results.sort_by(|a, b| a.0.total_cmp(&b.0));
     let ambiguous = results
         .get(1)

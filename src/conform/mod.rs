@@ -305,6 +305,8 @@ impl ConformOptions {
         for (name, v) in [
             ("align.template_up", self.align.template_up),
             ("align.scan_up", self.align.scan_up),
+            ("align.template_front", self.align.template_front),
+            ("align.scan_front", self.align.scan_front),
         ] {
             if let Some(u) =
                 v.filter(|u| !(u.iter().all(|c| c.is_finite()) && u.iter().any(|c| *c != 0.0)))
@@ -313,6 +315,19 @@ impl ConformOptions {
                     "{name} must be a finite, non-zero direction, got {u:?}"
                 ));
             }
+        }
+        if self.align.template_front.is_some() != self.align.scan_front.is_some() {
+            return bad(
+                "align.template_front and align.scan_front go together: the way the template \
+                 faces means nothing without the way the subject faces on the rig"
+                    .into(),
+            );
+        }
+        if !(self.align.front_within_deg > 0.0 && self.align.front_within_deg <= 180.0) {
+            return bad(format!(
+                "align.front_within_deg must be over 0 and at most 180 degrees, got {}",
+                self.align.front_within_deg
+            ));
         }
         if !(0.0..=180.0).contains(&self.max_normal_angle) {
             return bad(format!(
@@ -755,8 +770,10 @@ fn conform_on_pool(
     let score_of = |fit: &fit::Fit, x: &[V3], tris: &[[u32; 3]]| -> f64 {
         if fitted > 1 {
             let (m, _) = match_all(&surface, x, tris, &fit.limits);
-            let distance = MatchSummary::of(&m).mean_distance / fit.diag;
-            fit.baseline.measure(x).edge_length.std + 10.0 * distance
+            let summary = MatchSummary::of(&m);
+            let distance = summary.mean_distance / fit.diag;
+            let unmatched = 1.0 - summary.matched as f64 / x.len().max(1) as f64;
+            fit.baseline.measure(x).edge_length.std + 10.0 * distance + UNMATCHED_WEIGHT * unmatched
         } else {
             0.0
         }
@@ -997,6 +1014,11 @@ fn global_mapping(
         }
     })
 }
+
+/// What a share of the template left without a match (too far, or facing away from the
+/// scan) costs a hypothesis: a body fitted facing backwards stretches no more than one
+/// fitted the right way, but leaves its feet, face and an arm where no scan faces them.
+const UNMATCHED_WEIGHT: f64 = 1.0;
 
 /// Points spread over the template's surface for the automatic alignment: about twice
 /// the scan samples its ICP refines on.

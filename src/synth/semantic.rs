@@ -27,6 +27,9 @@ pub struct SemanticCase {
     /// the posed subject's bounding-box diagonal: errors are relative to it
     pub diag: f64,
     pub part: Part,
+    /// the way the subject faces on the rig (level; its rest pose's front turned to its
+    /// heading): what a station knows of its crate's head end or its booth's front camera
+    pub front: V3,
 }
 
 /// Per-landmark distances (relative to the diagonal), their mean, and the limb ends
@@ -44,6 +47,18 @@ impl SemanticCase {
         let mut o = base.clone();
         o.align.template_up = Some([0.0, 0.0, 1.0]);
         o.align.scan_up = Some([0.0, 0.0, 1.0]);
+        o
+    }
+
+    /// A station that also knows which way the subject faces (`[align] template_front`,
+    /// `scan_front`; the generic templates face +x), to within the default 90 degrees.
+    pub fn options_with_front(
+        &self,
+        base: &crate::conform::ConformOptions,
+    ) -> crate::conform::ConformOptions {
+        let mut o = self.options(base);
+        o.align.template_front = Some([1.0, 0.0, 0.0]);
+        o.align.scan_front = Some([self.front.x, self.front.y, self.front.z]);
         o
     }
 
@@ -76,6 +91,28 @@ impl SemanticCase {
             wrong_limb,
         }
     }
+}
+
+/// The way a subject faces in its rest pose, level (z up): from its heels to its toes
+/// (a person's head may lean back), else from its centre to its snout.
+fn rest_front(subject: &Mesh, marks: &[(String, u32)]) -> Option<V3> {
+    let at = |prefix: &str| -> Option<V3> {
+        let p: Vec<V3> = marks
+            .iter()
+            .filter(|(n, _)| n.starts_with(prefix))
+            .filter_map(|(_, v)| subject.vertices.get(*v as usize).copied())
+            .collect();
+        (!p.is_empty()).then(|| p.iter().sum::<V3>() / p.len() as f64)
+    };
+    let f = match (at("toe_"), at("heel_"), at("snout_tip")) {
+        (Some(t), Some(h), _) => t - h,
+        (_, _, Some(s)) => {
+            s - subject.vertices.iter().sum::<V3>() / subject.vertices.len().max(1) as f64
+        }
+        _ => return None,
+    };
+    let f = V3::new(f.x, f.y, 0.0);
+    (f.norm() > 0.0).then(|| f.normalize())
 }
 
 /// The ends of limbs, one mark per limb: a hoof, a hand or a toe found on another limb is
@@ -112,6 +149,17 @@ pub fn marks_of(mesh_name: &str) -> Result<Vec<(String, u32)>, String> {
 /// koala and the body onto the man (development), the pig onto the cow and the body onto
 /// the woman (validation, never tuned on).
 pub fn generic_cases(part: Part, names: &[&str]) -> Result<Vec<SemanticCase>, String> {
+    generic_cases_turned(part, names, 0.0)
+}
+
+/// The same cases with every subject turned `turn` degrees further about the vertical:
+/// whether the fit finds the subject's heading wherever it faces (the bench's heading
+/// sweep).
+pub fn generic_cases_turned(
+    part: Part,
+    names: &[&str],
+    turn: f64,
+) -> Result<Vec<SemanticCase>, String> {
     let subjects: &[(&str, Kind)] = match part {
         Part::Development => &[("koala", Kind::Pig), ("human", Kind::Body)],
         Part::Validation => &[("cow", Kind::Pig), ("woman", Kind::Body)],
@@ -132,6 +180,8 @@ pub fn generic_cases(part: Part, names: &[&str]) -> Result<Vec<SemanticCase>, St
             .collect();
         let subject = devset::load(subject_name)?;
         let marks = marks_of(subject_name)?;
+        let rest_front = rest_front(&subject, &marks)
+            .ok_or_else(|| format!("{subject_name}: no marks that say which way it faces"))?;
         let seed = 40 + 10 * k as u64 + if part == Part::Validation { 100 } else { 0 };
         let postures = [
             (
@@ -148,7 +198,8 @@ pub fn generic_cases(part: Part, names: &[&str]) -> Result<Vec<SemanticCase>, St
             ),
             ("large posture", large_posture(seed + 2, -65.0)),
         ];
-        for (what, spec) in postures {
+        for (what, mut spec) in postures {
+            spec.heading += turn;
             let mut rng = ChaCha8Rng::seed_from_u64(spec.seed);
             let (truth, _) = posed(&subject, &spec, subject.diagonal(), &mut rng);
             let posed_mesh = Mesh::new(truth.clone(), subject.triangles.clone());
@@ -171,9 +222,17 @@ pub fn generic_cases(part: Part, names: &[&str]) -> Result<Vec<SemanticCase>, St
                     })
                 })
                 .collect::<Result<_, String>>()?;
+            let front =
+                nalgebra::Rotation3::from_axis_angle(&V3::z_axis(), spec.heading.to_radians())
+                    * rest_front;
+            let turned = if turn == 0.0 {
+                String::new()
+            } else {
+                format!(", turned {turn}")
+            };
             out.push(SemanticCase {
                 name: format!(
-                    "generic {} onto {subject_name}, {what}",
+                    "generic {} onto {subject_name}, {what}{turned}",
                     match kind {
                         Kind::Pig => "pig",
                         Kind::Body => "body",
@@ -184,6 +243,7 @@ pub fn generic_cases(part: Part, names: &[&str]) -> Result<Vec<SemanticCase>, St
                 marks,
                 diag: posed_mesh.diagonal(),
                 part,
+                front,
             });
         }
     }
