@@ -232,73 +232,70 @@ fn generic(opts: &ConformOptions, only: &[&str], pictures: Option<&std::path::Pa
             semantic::generic_cases_turned(part, only, t).expect("generic cases")
         })
     });
-    {
-        for c in cases {
-            let t = Instant::now();
-            let o = if with_front {
-                c.options_with_front(opts)
-            } else {
-                c.options(opts)
-            };
-            let r = conform(&c.template, &c.scan, None, &o, &mut |_| {}).expect("conforms");
-            let secs = t.elapsed().as_secs_f64();
-            let s = c.score(&r.mesh.vertices);
-            if let Some(dir) = pictures {
-                // the result coloured by its distance to the scan, and both as files
-                std::fs::create_dir_all(dir).expect("pictures folder");
-                let stem = c.name.replace([' ', ','], "_");
-                let surface =
-                    conformd::conform::correspond::ScanSurface::new(&c.scan).expect("scan");
-                let colour = Colouring::distances(
-                    r.mesh
-                        .vertices
-                        .iter()
-                        .map(|p| surface.nearest_point(p).1)
-                        .collect(),
-                    "MESH UNITS",
-                );
-                let img = render::render(&r.mesh, &colour, &RenderOptions::default());
-                render::save_png(&img, &dir.join(format!("{stem}.png"))).expect("picture");
-                write_mesh(&dir.join(format!("{stem}_result.obj")), &r.mesh).expect("result");
-                write_mesh(&dir.join(format!("{stem}_scan.ply")), &c.scan).expect("scan");
-            }
-            sum += s.mean;
-            n += 1;
-            println!(
-                "{:<44} {:>6} | {:>6.3} {:>6.3} {:>6} | {:>5} {:>6.3} | {:>6.2} {}",
-                c.name,
-                c.scan.vertices.len(),
-                s.mean * 100.0,
-                s.max * 100.0,
-                s.wrong_limb.len(),
-                r.report.folded_triangles,
-                r.report.final_variation.edge_length.std,
-                secs,
-                match c.part {
-                    devset::Part::Development => "dev",
-                    devset::Part::Validation => "VALIDATION",
-                }
+    for c in cases {
+        let t = Instant::now();
+        let o = if with_front {
+            c.options_with_front(opts)
+        } else {
+            c.options(opts)
+        };
+        let r = conform(&c.template, &c.scan, None, &o, &mut |_| {}).expect("conforms");
+        let secs = t.elapsed().as_secs_f64();
+        let s = c.score(&r.mesh.vertices);
+        if let Some(dir) = pictures {
+            // the result coloured by its distance to the scan, and both as files
+            std::fs::create_dir_all(dir).expect("pictures folder");
+            let stem = c.name.replace([' ', ','], "_");
+            let surface = conformd::conform::correspond::ScanSurface::new(&c.scan).expect("scan");
+            let colour = Colouring::distances(
+                r.mesh
+                    .vertices
+                    .iter()
+                    .map(|p| surface.nearest_point(p).1)
+                    .collect(),
+                "MESH UNITS",
             );
-            let per: Vec<String> = s
-                .per_mark
-                .iter()
-                .map(|(m, d)| format!("{m} {:.2}", d * 100.0))
-                .collect();
-            println!("  {}", per.join(", "));
-            if !s.wrong_limb.is_empty() {
-                println!("  on another limb: {}", s.wrong_limb.join(", "));
+            let img = render::render(&r.mesh, &colour, &RenderOptions::default());
+            render::save_png(&img, &dir.join(format!("{stem}.png"))).expect("picture");
+            write_mesh(&dir.join(format!("{stem}_result.obj")), &r.mesh).expect("result");
+            write_mesh(&dir.join(format!("{stem}_scan.ply")), &c.scan).expect("scan");
+        }
+        sum += s.mean;
+        n += 1;
+        println!(
+            "{:<44} {:>6} | {:>6.3} {:>6.3} {:>6} | {:>5} {:>6.3} | {:>6.2} {}",
+            c.name,
+            c.scan.vertices.len(),
+            s.mean * 100.0,
+            s.max * 100.0,
+            s.wrong_limb.len(),
+            r.report.folded_triangles,
+            r.report.final_variation.edge_length.std,
+            secs,
+            match c.part {
+                devset::Part::Development => "dev",
+                devset::Part::Validation => "VALIDATION",
             }
-            if let conformd::conform::GlobalReport::Automatic(a) = &r.report.global {
-                eprintln!(
-                    "  alignment: {} candidates, residual {:.4} (runner-up {:?}), {} fitted, kept {}; limbs turned {:?}",
-                    a.candidates_tried,
-                    a.residual,
-                    a.runner_up_residual,
-                    a.fitted,
-                    a.kept,
-                    a.limb_turns.iter().map(|t| t.round()).collect::<Vec<_>>()
-                );
-            }
+        );
+        let per: Vec<String> = s
+            .per_mark
+            .iter()
+            .map(|(m, d)| format!("{m} {:.2}", d * 100.0))
+            .collect();
+        println!("  {}", per.join(", "));
+        if !s.wrong_limb.is_empty() {
+            println!("  on another limb: {}", s.wrong_limb.join(", "));
+        }
+        if let conformd::conform::GlobalReport::Automatic(a) = &r.report.global {
+            eprintln!(
+                "  alignment: {} candidates, residual {:.4} (runner-up {:?}), {} fitted, kept {}; limbs turned {:?}",
+                a.candidates_tried,
+                a.residual,
+                a.runner_up_residual,
+                a.fitted,
+                a.kept,
+                a.limb_turns.iter().map(|t| t.round()).collect::<Vec<_>>()
+            );
         }
     }
     println!(
