@@ -770,10 +770,8 @@ fn conform_on_pool(
     let score_of = |fit: &fit::Fit, x: &[V3], tris: &[[u32; 3]]| -> f64 {
         if fitted > 1 {
             let (m, _) = match_all(&surface, x, tris, &fit.limits);
-            let summary = MatchSummary::of(&m);
-            let distance = summary.mean_distance / fit.diag;
-            let unmatched = 1.0 - summary.matched as f64 / x.len().max(1) as f64;
-            fit.baseline.measure(x).edge_length.std + 10.0 * distance + UNMATCHED_WEIGHT * unmatched
+            let distance = MatchSummary::of(&m).mean_distance / fit.diag;
+            fit.baseline.measure(x).edge_length.std + 10.0 * distance
         } else {
             0.0
         }
@@ -1014,11 +1012,6 @@ fn global_mapping(
         }
     })
 }
-
-/// What a share of the template left without a match (too far, or facing away from the
-/// scan) costs a hypothesis: a body fitted facing backwards stretches no more than one
-/// fitted the right way, but leaves its feet, face and an arm where no scan faces them.
-const UNMATCHED_WEIGHT: f64 = 1.0;
 
 /// Points spread over the template's surface for the automatic alignment: about twice
 /// the scan samples its ICP refines on.
