@@ -1,8 +1,9 @@
 # conformd — `make demo` runs the main job on built-in defaults, `make test` runs every
 # test. Both first install the system packages the build needs when they are missing.
 
-# fonts-dejavu-core: the labels of the subject history plots
-APT_PACKAGES := libopencv-dev clang libclang-dev pkg-config libudev-dev fonts-dejavu-core
+# fonts-dejavu-core: the labels of the subject history plots; libjs-three: the capture
+# page's 3D view (three.js served from /usr/share/javascript/three)
+APT_PACKAGES := libopencv-dev clang libclang-dev pkg-config libudev-dev fonts-dejavu-core libjs-three
 # the status page's browser test runs Debian's headless Chromium; the journal and worker
 # tests start throwaway PostgreSQL clusters with Debian's server
 TEST_PACKAGES := chromium postgresql

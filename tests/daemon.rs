@@ -855,6 +855,9 @@ fn chromium(args: &[&str], url: &str, profile: &Path) -> std::process::Output {
             "--disable-component-update",
             "--disable-sync",
             "--hide-scrollbars",
+            // WebGL on the CPU (the capture page's 3D view): no GPU on a test machine
+            "--use-angle=swiftshader",
+            "--enable-unsafe-swiftshader",
             // under the page's 5 s refresh, so the dump is of the page, not of a reload
             "--virtual-time-budget=2000",
         ])
@@ -927,6 +930,150 @@ fn the_status_page_shows_the_latest_capture_and_its_preview_in_a_browser() {
         "the preview did not show ({coloured} coloured pixels)"
     );
     if let Ok(keep) = std::env::var("CONFORMD_KEEP_SCREENSHOT") {
+        std::fs::copy(&shot, keep).unwrap();
+    }
+}
+
+#[test]
+fn the_capture_page_draws_the_scan_the_fit_and_its_measurements_in_3d() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let (_, sets) = simulated();
+    let port = free_port();
+    let cfg = station(d, port, "", &[]);
+    let incoming = d.join("data/incoming");
+    std::fs::create_dir_all(&incoming).unwrap();
+    drop_set(&sets[2], &incoming, "view-1");
+    let daemon = Daemon::start(&cfg, port, &[]);
+    daemon.wait_settled(1, Duration::from_secs(60));
+    let result = d.join("data/results/view-1");
+    let scan = conformd::mesh::read_mesh(&result.join("scan.ply")).unwrap();
+    let conformed = conformd::mesh::read_mesh(&result.join("conformed.ply")).unwrap();
+    let view: conformd::station::view::View =
+        serde_json::from_slice(&std::fs::read(result.join("view.json")).unwrap()).unwrap();
+    // what the view must hold: a distance per vertex, the template's landmarks, and every
+    // measurement of the report, each drawn but the area and the volume
+    assert_eq!(view.distance.len(), conformed.vertices.len());
+    assert!(
+        view.landmarks.len() >= 6,
+        "{} landmarks",
+        view.landmarks.len()
+    );
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(result.join("report.json")).unwrap()).unwrap();
+    let measured = report["measurements"].as_array().unwrap();
+    assert_eq!(view.measurements.len(), measured.len());
+    for m in &view.measurements {
+        let drawn = m.lines.iter().map(Vec::len).sum::<usize>();
+        match m.kind.as_str() {
+            "area" | "volume" => assert_eq!(drawn, 0, "{}", m.name),
+            _ => assert!(drawn >= 2, "{} ({}) is not drawn", m.name, m.kind),
+        }
+    }
+    // a girth's loop is as long as its value, up to the section's own straight chords
+    let girth = view
+        .measurements
+        .iter()
+        .find(|m| m.kind == "girth")
+        .unwrap();
+    let l = &girth.lines[0];
+    let loop_length: f64 = (0..l.len())
+        .map(|i| {
+            let (a, b) = (l[i], l[(i + 1) % l.len()]);
+            (0..3)
+                .map(|k| ((a[k] - b[k]) as f64).powi(2))
+                .sum::<f64>()
+                .sqrt()
+        })
+        .sum();
+    assert!(
+        (loop_length - girth.value).abs() < 1e-4 * girth.value,
+        "{}: loop {loop_length}, value {}",
+        girth.name,
+        girth.value
+    );
+
+    let url = daemon.url("/captures/view-1");
+    let attr = |dom: &str, name: &str| -> Option<String> {
+        let at = dom.find(&format!("{name}=\""))? + name.len() + 2;
+        Some(dom[at..at + dom[at..].find('"')?].to_string())
+    };
+    let mut out = chromium(&["--dump-dom"], &url, &d.join("chrome-1"));
+    for _ in 0..2 {
+        if attr(&String::from_utf8_lossy(&out.stdout), "data-state").as_deref() == Some("ready") {
+            break;
+        }
+        out = chromium(&["--dump-dom"], &url, &d.join("chrome-1"));
+    }
+    let dom = String::from_utf8_lossy(&out.stdout);
+    let said = || {
+        format!(
+            "the page: {dom}\nChromium said: {}",
+            String::from_utf8_lossy(&out.stderr)
+        )
+    };
+    assert_eq!(
+        attr(&dom, "data-state").as_deref(),
+        Some("ready"),
+        "{}",
+        said()
+    );
+    // the scene holds the whole scan, the whole mesh, and one object per landmark and
+    // per measurement
+    let count = |name: &str| attr(&dom, name).and_then(|v| v.parse::<usize>().ok());
+    assert_eq!(
+        count("data-scan-points"),
+        Some(scan.vertices.len()),
+        "{}",
+        said()
+    );
+    assert_eq!(count("data-mesh-vertices"), Some(conformed.vertices.len()));
+    assert_eq!(count("data-landmarks"), Some(view.landmarks.len()));
+    assert_eq!(count("data-measurements"), Some(measured.len()));
+    assert!(
+        dom.contains(" mm<") || dom.contains(" mm</span>"),
+        "no unit on the colour bar"
+    );
+
+    let shot = d.join("capture.png");
+    let out = chromium(
+        &[
+            "--window-size=1000,1400",
+            &format!("--screenshot={}", shot.display()),
+        ],
+        &url,
+        &d.join("chrome-2"),
+    );
+    assert!(
+        shot.is_file(),
+        "no screenshot: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let img = image::open(&shot).unwrap().to_rgb8();
+    // the viewer's box: find its grey background (#f4f4f4) and look at its middle
+    let grey = |p: &image::Rgb<u8>| p.0 == [244, 244, 244];
+    let (mut x0, mut y0, mut x1, mut y1) = (u32::MAX, u32::MAX, 0, 0);
+    for (x, y, p) in img.enumerate_pixels() {
+        if grey(p) {
+            (x0, y0, x1, y1) = (x0.min(x), y0.min(y), x1.max(x), y1.max(y));
+        }
+    }
+    assert!(
+        x1 > x0 + 300 && y1 > y0 + 300,
+        "no 3D view in the screenshot ({x0},{y0})-({x1},{y1})"
+    );
+    let (cx, cy, rx, ry) = ((x0 + x1) / 2, (y0 + y1) / 2, (x1 - x0) / 6, (y1 - y0) / 6);
+    let drawn = (cy - ry..cy + ry)
+        .flat_map(|y| (cx - rx..cx + rx).map(move |x| (x, y)))
+        .filter(|&(x, y)| !grey(img.get_pixel(x, y)))
+        .count();
+    let share = drawn as f64 / (4 * rx * ry) as f64;
+    eprintln!("3D view: {share:.2} of its middle drawn");
+    assert!(
+        share > 0.3,
+        "the 3D view's middle is background ({share:.2} drawn)"
+    );
+    if let Ok(keep) = std::env::var("CONFORMD_KEEP_CAPTURE_SCREENSHOT") {
         std::fs::copy(&shot, keep).unwrap();
     }
 }

@@ -37,6 +37,8 @@ pub fn router(shared: Arc<Shared>) -> Router {
         .route("/api/captures", get(list))
         .route("/api/captures/{id}", get(capture))
         .route("/api/captures/{id}/{file}", get(capture_file))
+        .route("/static/viewer.js", get(viewer_js))
+        .route("/static/three/{file}", get(three_js))
         .merge(mutating)
         .layer(DefaultBodyLimit::max(MAX_BODY))
         .with_state(shared)
@@ -278,13 +280,13 @@ async fn capture_file(
     let job = job_or_404(&shared, &id)?;
     let kind = match file.as_str() {
         "preview.png" => "image/png",
-        "report.json" => "application/json",
+        "report.json" | crate::station::view::VIEW_FILE => "application/json",
         "scan.ply" | "conformed.ply" => "application/octet-stream",
         _ => {
             return Err(ApiError(
                 StatusCode::NOT_FOUND,
                 format!(
-                    "'{file}': a result has preview.png, report.json, scan.ply and conformed.ply"
+                    "'{file}': a result has preview.png, report.json, scan.ply, conformed.ply and view.json"
                 ),
             ));
         }
@@ -303,6 +305,56 @@ async fn capture_file(
     .map_err(|e| ApiError(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?
     .map_err(|e| ApiError(StatusCode::NOT_FOUND, format!("{file}: {e}")))?;
     Ok(([(header::CONTENT_TYPE, kind)], bytes).into_response())
+}
+
+/// The capture page's 3D viewer (`viewer.js`, built into the binary).
+async fn viewer_js() -> Response {
+    (
+        [(header::CONTENT_TYPE, "text/javascript; charset=utf-8")],
+        include_str!("viewer.js"),
+    )
+        .into_response()
+}
+
+/// Where Debian's libjs-three puts three.js: the viewer uses the system's copy, which
+/// the distribution keeps patched, rather than one built into the binary.
+pub const THREE_DIR: &str = "/usr/share/javascript/three";
+
+/// The three files of three.js the viewer loads, from [`THREE_DIR`].
+async fn three_js(Path(file): Path<String>) -> Api<Response> {
+    let rel = match file.as_str() {
+        "three.min.js" => "build/three.min.js",
+        "OrbitControls.js" => "examples/js/controls/OrbitControls.js",
+        "PLYLoader.js" => "examples/js/loaders/PLYLoader.js",
+        _ => {
+            return Err(ApiError(
+                StatusCode::NOT_FOUND,
+                format!(
+                    "'{file}': the viewer serves three.min.js, OrbitControls.js and PLYLoader.js"
+                ),
+            ));
+        }
+    };
+    let path = std::path::Path::new(THREE_DIR).join(rel);
+    let bytes = tokio::task::spawn_blocking(move || {
+        crate::files::read_limited(&path, crate::files::MAX_REPORT_BYTES)
+    })
+    .await
+    .map_err(internal)?
+    .map_err(|e| {
+        ApiError(
+            StatusCode::NOT_FOUND,
+            format!("{e}: the 3D view needs Debian's libjs-three (apt-get install libjs-three)"),
+        )
+    })?;
+    Ok((
+        [
+            (header::CONTENT_TYPE, "text/javascript; charset=utf-8"),
+            (header::CACHE_CONTROL, "max-age=86400"),
+        ],
+        bytes,
+    )
+        .into_response())
 }
 
 #[derive(serde::Deserialize, Default)]
@@ -666,18 +718,47 @@ async fn capture_page(Ctx(shared): Ctx<Arc<Shared>>, Path(id): Path<String>) -> 
         }
     }
     h.push_str("</table>");
+    if j.state == State::Done {
+        h.push_str(&viewer(&j.id));
+    }
     if let Some(r) = &d.report {
         h.push_str(&measurement_table(r));
     }
     if j.state == State::Done {
         let _ = write!(
             h,
-            "<p><img src=\"/api/captures/{id}/preview.png\" width=\"640\" alt=\"preview\"></p><p><a href=\"/api/captures/{id}/conformed.ply\">conformed.ply</a> · <a href=\"/api/captures/{id}/scan.ply\">scan.ply</a> · <a href=\"/api/captures/{id}/report.json\">report.json</a></p>",
+            "<p><img src=\"/api/captures/{id}/preview.png\" width=\"640\" alt=\"preview\"></p><p><a href=\"/api/captures/{id}/conformed.ply\">conformed.ply</a> · <a href=\"/api/captures/{id}/scan.ply\">scan.ply</a> · <a href=\"/api/captures/{id}/report.json\">report.json</a> · <a href=\"/api/captures/{id}/view.json\">view.json</a></p>",
             id = esc(&j.id)
         );
     }
     h.push_str("</body></html>");
     Ok(Html(h))
+}
+
+/// The 3D view of a result: the layers' toggles, the canvas' box, the distance colour
+/// bar and the scripts (three.js from the system, then `viewer.js`).
+fn viewer(id: &str) -> String {
+    let toggles: String = [
+        ("scan", "scan points"),
+        ("mesh", "conformed mesh"),
+        ("landmarks", "landmarks"),
+        ("measurements", "measurements"),
+        ("names", "landmark names"),
+    ]
+    .iter()
+    .map(|(layer, text)| {
+        // the names crowd a small subject: off until asked for
+        let on = if *layer == "names" { "" } else { " checked" };
+        format!("<label><input type=\"checkbox\" data-layer=\"{layer}\"{on}> {text}</label> ")
+    })
+    .collect();
+    format!(
+        "<h2>3D view</h2><div id=\"viewer-controls\">{toggles}<br><small>drag to turn, scroll to zoom, right-drag to pan</small></div>\
+<div id=\"viewer\" data-capture=\"{id}\" data-state=\"loading\" style=\"width:900px;max-width:100%;height:560px;border:1px solid #ccc\"></div>\
+<div id=\"viewer-bar\" style=\"display:none;width:900px;max-width:100%\"><div>distance to the scan</div><div style=\"height:12px;background:linear-gradient(to right,#440154,#3b528b,#21918c,#5ec962,#fde725)\"></div><span class=\"lo\"></span><span class=\"hi\" style=\"float:right\"></span></div>\
+<script src=\"/static/three/three.min.js\"></script><script src=\"/static/three/OrbitControls.js\"></script><script src=\"/static/three/PLYLoader.js\"></script><script src=\"/static/viewer.js\"></script>",
+        id = esc(id)
+    )
 }
 
 /// A report's stage seconds (`{"read": 0.1, ...}`) as a small table, the total last.

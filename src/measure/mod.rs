@@ -347,6 +347,16 @@ impl Resolved {
 
     /// Every measurement on `mesh` (the template's vertex order).
     pub fn measure(&self, mesh: &Mesh) -> Result<Vec<Measurement>, MeasureError> {
+        Ok(self
+            .measure_drawn(mesh)?
+            .into_iter()
+            .map(|d| d.measurement)
+            .collect())
+    }
+
+    /// Every measurement on `mesh` with the lines it was taken along, for a viewer to
+    /// draw where it was taken.
+    pub fn measure_drawn(&self, mesh: &Mesh) -> Result<Vec<Drawn>, MeasureError> {
         if mesh.vertices.len() != self.vertices {
             return Err(MeasureError::VertexCount {
                 got: mesh.vertices.len(),
@@ -361,14 +371,16 @@ impl Resolved {
                 name: name.clone(),
                 message,
             };
-            let (value, power) = match r {
-                Resolved1::Path(ps) => (
-                    ps.windows(2)
-                        .map(|w| (place(&w[1]) - place(&w[0])).norm())
-                        .sum(),
-                    1,
-                ),
-                Resolved1::Surface(a, b) => (edge_path(mesh, a[0], b[0]), 1),
+            let (value, power, lines, closed) = match r {
+                Resolved1::Path(ps) => {
+                    let line: Vec<V3> = ps.iter().map(&place).collect();
+                    let length = line.windows(2).map(|w| (w[1] - w[0]).norm()).sum();
+                    (length, 1, vec![line], false)
+                }
+                Resolved1::Surface(a, b) => {
+                    let (length, line) = edge_path(mesh, a[0], b[0]);
+                    (length, 1, vec![line], false)
+                }
                 Resolved1::Section { at, axis, across } => {
                     let p = place(at);
                     let normal = (place(&axis[1]) - place(&axis[0]))
@@ -389,7 +401,10 @@ impl Resolved {
                         )));
                     }
                     match across {
-                        None => (hull_perimeter(&piece, &normal), 1),
+                        None => {
+                            let hull = hull_loop(&piece, &normal);
+                            (loop_length(&hull), 1, vec![hull], true)
+                        }
                         Some([a, b]) => {
                             let d = place(b) - place(a);
                             let side = d - normal * normal.dot(&d);
@@ -400,16 +415,24 @@ impl Resolved {
                                 ));
                             }
                             let d = side.normalize();
-                            let (lo, hi) = piece
+                            let lo = piece
                                 .iter()
-                                .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), q| {
-                                    (lo.min(q.dot(&d)), hi.max(q.dot(&d)))
-                                });
-                            (hi - lo, 1)
+                                .min_by(|a, b| a.dot(&d).total_cmp(&b.dot(&d)))
+                                .expect("a section has points");
+                            let hi = piece
+                                .iter()
+                                .map(|q| q.dot(&d))
+                                .fold(f64::NEG_INFINITY, f64::max);
+                            let width = hi - lo.dot(&d);
+                            (width, 1, vec![vec![*lo, lo + d * width]], false)
                         }
                     }
                 }
-                Resolved1::Height(p) => (place(p).dot(&self.up) - self.floor, 1),
+                Resolved1::Height(p) => {
+                    let top = place(p);
+                    let height = top.dot(&self.up) - self.floor;
+                    (height, 1, vec![vec![top, top - self.up * height]], false)
+                }
                 Resolved1::Area(tris) => (
                     match tris {
                         None => mesh.area(),
@@ -419,24 +442,40 @@ impl Resolved {
                             .sum(),
                     },
                     2,
+                    Vec::new(),
+                    false,
                 ),
-                Resolved1::Volume => (volume(mesh), 3),
+                Resolved1::Volume => (volume(mesh), 3, Vec::new(), false),
             };
             if !value.is_finite() {
                 return Err(err(format!("came out as {value} on this mesh")));
             }
-            out.push(Measurement {
-                name: name.clone(),
-                kind: kind_name(kind).into(),
-                value,
-                unit: match power {
-                    1 => self.unit.clone(),
-                    p => format!("{}^{p}", self.unit),
+            out.push(Drawn {
+                measurement: Measurement {
+                    name: name.clone(),
+                    kind: kind_name(kind).into(),
+                    value,
+                    unit: match power {
+                        1 => self.unit.clone(),
+                        p => format!("{}^{p}", self.unit),
+                    },
                 },
+                lines,
+                closed,
             });
         }
         Ok(out)
     }
+}
+
+/// A measurement with where it was taken: polylines on or beside the mesh (a girth's
+/// loop, a length's path, a height's drop to the floor; none for areas and volumes).
+#[derive(Debug, Clone)]
+pub struct Drawn {
+    pub measurement: Measurement,
+    pub lines: Vec<Vec<V3>>,
+    /// the lines are loops (a girth)
+    pub closed: bool,
 }
 
 fn kind_name(k: &Kind) -> &'static str {
@@ -465,9 +504,28 @@ pub fn volume(m: &Mesh) -> f64 {
 }
 
 /// Shortest way from `a` to `b` along the mesh's edges (Dijkstra).
-fn edge_path(m: &Mesh, a: u32, b: u32) -> f64 {
+/// Length and vertices of the shortest way along the mesh's edges from `a` to `b`.
+fn edge_path(m: &Mesh, a: u32, b: u32) -> (f64, Vec<V3>) {
     let nb = topology::vertex_neighbours(m.vertices.len(), &m.triangles);
-    topology::edge_distances(&m.vertices, &nb, &[a]).0[b as usize]
+    let dist = topology::edge_distances(&m.vertices, &nb, &[a]).0;
+    // walk back from b, each step to the neighbour the distance came through
+    let mut line = vec![m.vertices[b as usize]];
+    let mut at = b as usize;
+    while at != a as usize && dist[at].is_finite() {
+        let prev = nb[at]
+            .iter()
+            .map(|&j| j as usize)
+            .filter(|&j| dist[j] < dist[at])
+            .min_by(|&i, &j| {
+                let via = |k: usize| dist[k] + (m.vertices[k] - m.vertices[at]).norm();
+                via(i).total_cmp(&via(j))
+            });
+        let Some(prev) = prev else { break };
+        line.push(m.vertices[prev]);
+        at = prev;
+    }
+    line.reverse();
+    (dist[b as usize], line)
 }
 
 /// The points of the mesh's section by the plane through `p` with unit normal `n`, of
@@ -532,15 +590,31 @@ pub fn section_piece(m: &Mesh, p: &V3, n: &V3) -> Option<Vec<V3>> {
 
 /// Perimeter of the convex hull of points lying in a plane with unit normal `n`.
 pub fn hull_perimeter(points: &[V3], n: &V3) -> f64 {
+    loop_length(&hull_loop(points, n))
+}
+
+fn loop_length(l: &[V3]) -> f64 {
+    (0..l.len())
+        .map(|i| (l[(i + 1) % l.len()] - l[i]).norm())
+        .sum()
+}
+
+/// The convex hull, in order, of points lying in a plane with unit normal `n`.
+pub fn hull_loop(points: &[V3], n: &V3) -> Vec<V3> {
     let u = n
         .cross(&if n.x.abs() < 0.9 { V3::x() } else { V3::y() })
         .normalize();
     let w = n.cross(&u);
+    let Some(first) = points.first() else {
+        return Vec::new();
+    };
+    let offset = first.dot(n);
     let mut q: Vec<(f64, f64)> = points.iter().map(|p| (p.dot(&u), p.dot(&w))).collect();
     q.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.total_cmp(&b.1)));
     q.dedup();
+    let to_space = |(a, b): (f64, f64)| u * a + w * b + n * offset;
     if q.len() < 2 {
-        return 0.0;
+        return q.into_iter().map(to_space).collect();
     }
     let cross = |o: (f64, f64), a: (f64, f64), b: (f64, f64)| {
         (a.0 - o.0) * (b.1 - o.1) - (a.1 - o.1) * (b.0 - o.0)
@@ -564,12 +638,7 @@ pub fn hull_perimeter(points: &[V3], n: &V3) -> f64 {
         }
         hull.pop();
     }
-    (0..hull.len())
-        .map(|i| {
-            let (a, b) = (hull[i], hull[(i + 1) % hull.len()]);
-            ((a.0 - b.0).powi(2) + (a.1 - b.1).powi(2)).sqrt()
-        })
-        .sum()
+    hull.into_iter().map(to_space).collect()
 }
 
 /// How a result's posture is taken out before it is measured again.

@@ -6,6 +6,7 @@
 pub mod config;
 pub mod export;
 pub mod pipeline;
+pub mod view;
 
 pub use config::{ConfigError, StationConfig};
 pub use pipeline::{Control, Pipeline, PipelineError, Processed, Stage, StageError};

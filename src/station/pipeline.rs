@@ -229,9 +229,11 @@ pub struct Processed {
     pub conformed: Mesh,
     pub report: ProcessReport,
     pub preview: image::RgbImage,
+    /// what the capture page's 3D viewer draws beside the meshes
+    pub view: super::view::View,
 }
 
-/// The files of a result folder.
+/// The files of a result folder (and [`super::view::VIEW_FILE`], which older results lack).
 pub const RESULT_FILES: [&str; 4] = ["scan.ply", "conformed.ply", "report.json", "preview.png"];
 
 impl Processed {
@@ -274,7 +276,8 @@ impl Processed {
         let tmp = results.join(format!(".{}.partial-{tag}", self.id));
         let enc = crate::mesh::io::PlyEncoding::BinaryLittleEndian;
         let json = serde_json::to_vec_pretty(&self.report).expect("a report serialises");
-        let files: [(&str, Vec<u8>); 4] = [
+        let view = serde_json::to_vec(&self.view).expect("a view serialises");
+        let files: [(&str, Vec<u8>); 5] = [
             ("scan.ply", crate::mesh::io::ply_bytes(&self.scan, enc)),
             (
                 "conformed.ply",
@@ -282,6 +285,7 @@ impl Processed {
             ),
             ("report.json", json),
             ("preview.png", crate::render::png_bytes(&self.preview)),
+            (super::view::VIEW_FILE, view),
         ];
         let result = (|| {
             std::fs::create_dir(&tmp).map_err(|e| fail(&tmp, e))?;
@@ -472,8 +476,12 @@ impl Measuring {
     /// fatal: the conformed result stands without them.
     fn run(&self, id: &str, mesh: &Mesh) -> MeasuredResult {
         let mut out = MeasuredResult::default();
-        let raw = match self.resolved.measure(mesh) {
-            Ok(r) => r,
+        let raw = match self.resolved.measure_drawn(mesh) {
+            Ok(drawn) => {
+                let raw: Vec<Measurement> = drawn.iter().map(|d| d.measurement.clone()).collect();
+                out.drawn = drawn;
+                raw
+            }
             Err(e) => {
                 out.error = Some(e.to_string());
                 return out;
@@ -503,6 +511,8 @@ impl Measuring {
 #[derive(Default)]
 struct MeasuredResult {
     raw: Option<Vec<Measurement>>,
+    /// the raw ones with where they were taken
+    drawn: Vec<crate::measure::Drawn>,
     normalised: Option<Vec<Measurement>>,
     weight: Option<WeightPrediction>,
     error: Option<String>,
@@ -647,7 +657,15 @@ impl Pipeline {
         seconds.score = t.elapsed().as_secs_f64();
 
         let t = Instant::now();
-        let preview = preview(&conformed.mesh, &scan);
+        let distance = distances_to_scan(&conformed.mesh, &scan);
+        let preview = preview(&conformed.mesh, distance.as_deref());
+        let view = super::view::View::new(
+            &conformed.mesh,
+            &self.template,
+            distance.as_deref(),
+            self.template_landmarks.as_deref(),
+            &measured.drawn,
+        );
         seconds.preview = t.elapsed().as_secs_f64();
         seconds.total = t_all.elapsed().as_secs_f64();
         Ok(Processed {
@@ -670,6 +688,7 @@ impl Pipeline {
             scan,
             conformed: conformed.mesh,
             preview,
+            view,
         })
     }
 }
@@ -722,21 +741,26 @@ pub fn read_pod_images(
     Ok(PodPixels { pixels, cameras })
 }
 
+/// Each vertex's distance to the scan's surface (None when the scan has none).
+pub fn distances_to_scan(conformed: &Mesh, scan: &Mesh) -> Option<Vec<f64>> {
+    let surface = crate::conform::correspond::ScanSurface::new(scan).ok()?;
+    Some(
+        conformed
+            .vertices
+            .iter()
+            .map(|p| surface.distance(p))
+            .collect(),
+    )
+}
+
 /// The result's preview: the conformed mesh from two views, coloured by each vertex's
-/// distance to the scan.
-pub fn preview(conformed: &Mesh, scan: &Mesh) -> image::RgbImage {
+/// distance to the scan (`distance`, from [`distances_to_scan`]).
+pub fn preview(conformed: &Mesh, distance: Option<&[f64]>) -> image::RgbImage {
     use crate::render::{Colouring, RenderOptions, View};
-    let colouring = match crate::conform::correspond::ScanSurface::new(scan) {
+    let colouring = match distance {
         // the station works in metres; a fit's distances read in millimetres
-        Ok(surface) => Colouring::distances(
-            conformed
-                .vertices
-                .iter()
-                .map(|p| surface.distance(p) * 1000.0)
-                .collect(),
-            "MM",
-        ),
-        Err(_) => Colouring::Plain,
+        Some(d) => Colouring::distances(d.iter().map(|d| d * 1000.0).collect(), "MM"),
+        None => Colouring::Plain,
     };
     let views = ["three-quarter", "side"]
         .iter()

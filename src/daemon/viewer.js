@@ -1,0 +1,202 @@
+// The capture page's 3D view: the scan's points and the conformed mesh overlaid (three.js,
+// Debian's libjs-three), the mesh coloured by each vertex's distance to the scan, the
+// template's landmarks and every measurement drawn where it was taken, with its value.
+// It renders only when something changed, so a 100k-point scan stays light. The state is
+// left on the container (data-state, counts) and in window.conformdViewer for tests.
+(function () {
+  "use strict";
+  const box = document.getElementById("viewer");
+  if (!box) return;
+  const id = box.dataset.capture;
+  const fail = (why) => {
+    box.dataset.state = "error";
+    box.textContent = "3D view unavailable: " + why;
+  };
+  if (typeof THREE === "undefined" || !THREE.OrbitControls || !THREE.PLYLoader) {
+    fail("three.js is not served (install Debian's libjs-three on the station)");
+    return;
+  }
+  // the same viridis-like stops as the station's preview images
+  const STOPS = [[68, 1, 84], [59, 82, 139], [33, 145, 140], [94, 201, 98], [253, 231, 37]];
+  function colourMap(t) {
+    t = Math.min(Math.max(isFinite(t) ? t : 0, 0), 1) * 4;
+    const i = Math.min(Math.floor(t), 3), f = t - i;
+    return STOPS[i].map((c, k) => (c * (1 - f) + STOPS[i + 1][k] * f) / 255);
+  }
+
+  const renderer = new THREE.WebGLRenderer({ antialias: true, preserveDrawingBuffer: true });
+  renderer.setPixelRatio(window.devicePixelRatio || 1);
+  const width = () => box.clientWidth || 800, height = () => box.clientHeight || 520;
+  renderer.setSize(width(), height());
+  box.appendChild(renderer.domElement);
+  const scene = new THREE.Scene();
+  scene.background = new THREE.Color(0xf4f4f4);
+  const camera = new THREE.PerspectiveCamera(40, width() / height(), 0.001, 1000);
+  camera.up.set(0, 0, 1); // the station's z is up
+  scene.add(new THREE.HemisphereLight(0xffffff, 0x666666, 0.9));
+  const sun = new THREE.DirectionalLight(0xffffff, 0.5);
+  scene.add(sun);
+  const controls = new THREE.OrbitControls(camera, renderer.domElement);
+  let queued = false;
+  const render = () => {
+    if (queued) return;
+    queued = true;
+    requestAnimationFrame(() => {
+      queued = false;
+      sun.position.copy(camera.position);
+      renderer.render(scene, camera);
+    });
+  };
+  controls.addEventListener("change", render);
+  window.addEventListener("resize", () => {
+    camera.aspect = width() / height();
+    camera.updateProjectionMatrix();
+    renderer.setSize(width(), height());
+    render();
+  });
+
+  const layers = { scan: [], mesh: [], landmarks: [], measurements: [], names: [] };
+  const state = { scene: scene, scan: null, mesh: null, landmarks: [], measurements: [], render: render };
+  window.conformdViewer = state;
+
+  function label(text, colour, at, size, layer) {
+    const c = document.createElement("canvas");
+    const g = c.getContext("2d");
+    const font = "28px sans-serif";
+    g.font = font;
+    c.width = Math.ceil(g.measureText(text).width) + 16;
+    c.height = 40;
+    g.font = font;
+    g.fillStyle = "rgba(255,255,255,0.85)";
+    g.fillRect(0, 0, c.width, c.height);
+    g.fillStyle = colour;
+    g.fillText(text, 8, 29);
+    const tex = new THREE.CanvasTexture(c);
+    const s = new THREE.Sprite(new THREE.SpriteMaterial({ map: tex, depthTest: false, sizeAttenuation: false }));
+    s.scale.set(size * c.width / c.height, size, 1);
+    s.position.copy(at);
+    s.renderOrder = 10;
+    if (layer) layers[layer].push(s);
+    return s;
+  }
+
+  const get = (file, type) => fetch("/api/captures/" + encodeURIComponent(id) + "/" + file).then((r) => {
+    if (!r.ok) throw new Error(file + ": HTTP " + r.status);
+    return type === "json" ? r.json() : r.arrayBuffer();
+  });
+  const view = get("view.json", "json").catch(() => null); // older results have none
+  Promise.all([get("scan.ply"), get("conformed.ply"), view]).then(([scanBytes, meshBytes, v]) => {
+    const loader = new THREE.PLYLoader();
+    const scanGeo = loader.parse(scanBytes);
+    const meshGeo = loader.parse(meshBytes);
+    meshGeo.computeBoundingSphere();
+    const sphere = meshGeo.boundingSphere;
+    const r = sphere.radius || 1;
+
+    const points = new THREE.Points(scanGeo, new THREE.PointsMaterial({
+      color: 0x222222, size: 1.5, sizeAttenuation: false, transparent: true, opacity: 0.35, depthWrite: false,
+    }));
+    points.name = "scan";
+    scene.add(points);
+    layers.scan.push(points);
+    state.scan = points;
+
+    const n = meshGeo.attributes.position.count;
+    const dist = v && v.distance && v.distance.length === n ? v.distance : null;
+    let top = 0;
+    if (dist) {
+      // the colour bar ends at the 98th percentile, so one far vertex does not grey the rest
+      const sorted = Array.from(dist).filter(isFinite).sort((a, b) => a - b);
+      top = sorted.length ? sorted[Math.floor(0.98 * (sorted.length - 1))] : 0;
+      const colours = new Float32Array(3 * n);
+      for (let i = 0; i < n; i++) colours.set(colourMap(top > 0 ? dist[i] / top : 0), 3 * i);
+      meshGeo.setAttribute("color", new THREE.BufferAttribute(colours, 3));
+    }
+    meshGeo.computeVertexNormals();
+    const mesh = new THREE.Mesh(meshGeo, new THREE.MeshLambertMaterial({
+      color: dist ? 0xffffff : 0xc9a27e,
+      vertexColors: dist ? THREE.VertexColors : THREE.NoColors,
+      side: THREE.DoubleSide,
+    }));
+    mesh.name = "conformed";
+    scene.add(mesh);
+    layers.mesh.push(mesh);
+    state.mesh = mesh;
+    const bar = document.getElementById("viewer-bar");
+    if (bar && dist) {
+      const unit = v.unit === "m" ? 1000 : 1, name = v.unit === "m" ? "mm" : v.unit;
+      bar.querySelector(".hi").textContent = (top * unit).toFixed(1) + " " + name;
+      bar.querySelector(".lo").textContent = "0 " + name;
+      bar.style.display = "";
+    }
+
+    const dot = new THREE.SphereBufferGeometry(r * 0.012, 12, 8);
+    const dotMat = new THREE.MeshBasicMaterial({ color: 0xd0021b });
+    for (const l of (v && v.landmarks) || []) {
+      const g = new THREE.Group();
+      g.name = "landmark:" + l.name;
+      const at = new THREE.Vector3().fromArray(l.position);
+      const m = new THREE.Mesh(dot, dotMat);
+      m.position.copy(at);
+      g.add(m);
+      g.add(label(l.name, "#b00020", at.clone().add(new THREE.Vector3(0, 0, r * 0.03)), 0.03, "names"));
+      g.userData = l;
+      scene.add(g);
+      layers.landmarks.push(g);
+      state.landmarks.push(g);
+    }
+
+    const lineMat = new THREE.LineBasicMaterial({ color: 0x1f4fb4, depthTest: false });
+    let unplaced = 0;
+    for (const m of (v && v.measurements) || []) {
+      const g = new THREE.Group();
+      g.name = "measurement:" + m.name;
+      g.userData = m;
+      const unit = m.unit === "m" ? [100, "cm"] : [1, m.unit];
+      const text = m.name + " " + (m.value * unit[0]).toFixed(1) + " " + unit[1];
+      let anchor = null;
+      for (const l of m.lines) {
+        const pts = l.map((p) => new THREE.Vector3().fromArray(p));
+        if (pts.length < 2) continue;
+        const geo = new THREE.BufferGeometry().setFromPoints(pts);
+        const line = m.closed ? new THREE.LineLoop(geo, lineMat) : new THREE.Line(geo, lineMat);
+        line.renderOrder = 5;
+        g.add(line);
+        if (!anchor) {
+          // a loop is labelled at its highest point, a line at its middle
+          anchor = m.closed ? pts.reduce((a, b) => (b.z > a.z ? b : a)) : pts[Math.floor(pts.length / 2)];
+        }
+      }
+      if (!anchor) {
+        // areas and volumes: stacked above the subject
+        anchor = sphere.center.clone().add(new THREE.Vector3(0, 0, r * (1.05 + 0.12 * unplaced++)));
+      }
+      g.add(label(text, "#1f4fb4", anchor, 0.035));
+      scene.add(g);
+      layers.measurements.push(g);
+      state.measurements.push(g);
+    }
+
+    camera.position.copy(sphere.center).add(new THREE.Vector3(1.2 * r, -1.8 * r, 0.9 * r));
+    camera.near = r / 100;
+    camera.far = r * 100;
+    camera.updateProjectionMatrix();
+    controls.target.copy(sphere.center);
+    controls.update();
+
+    for (const input of document.querySelectorAll("#viewer-controls input[data-layer]")) {
+      const show = () => {
+        for (const o of layers[input.dataset.layer]) o.visible = input.checked;
+        render();
+      };
+      input.addEventListener("change", show);
+      show();
+    }
+    box.dataset.scanPoints = scanGeo.attributes.position.count;
+    box.dataset.meshVertices = n;
+    box.dataset.landmarks = state.landmarks.length;
+    box.dataset.measurements = state.measurements.length;
+    box.dataset.state = "ready";
+    render();
+  }).catch((e) => fail(e.message));
+})();
