@@ -459,6 +459,12 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
             for (file, why) in &export.skipped {
                 eprintln!("warning: {file} left out: {why}");
             }
+            if !export.rejected.is_empty() {
+                eprintln!(
+                    "{} rejected result(s) left out (review.json)",
+                    export.rejected.len()
+                );
+            }
             let csv = export.csv;
             match out {
                 Some(p) => {

@@ -1077,3 +1077,134 @@ fn the_capture_page_draws_the_scan_the_fit_and_its_measurements_in_3d() {
         std::fs::copy(&shot, keep).unwrap();
     }
 }
+
+#[test]
+fn reviews_are_checked_and_a_rejected_result_leaves_the_export_and_the_model() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let (_, sets) = simulated();
+    let port = free_port();
+    let token = "review-token-0123456789";
+    let quoted = format!("\"{token}\"");
+    let cfg = station(d, port, "", &[("token", &quoted)]);
+    let captures = d.join("data/captures");
+    std::fs::create_dir_all(&captures).unwrap();
+    for (i, set) in sets.iter().take(4).enumerate() {
+        drop_set(set, &captures, &format!("r{i}"));
+    }
+    let s = drop_set(&sets[0], &captures, "broken");
+    let img = s.join("pod1-left.png");
+    let b = std::fs::read(&img).unwrap();
+    std::fs::write(&img, &b[..b.len() / 4]).unwrap();
+    let daemon = Daemon::start(&cfg, port, &[]);
+    daemon.wait_settled(5, Duration::from_secs(180));
+    let review = |id: &str, body: &[u8], token: Option<&str>| {
+        request(
+            "POST",
+            &daemon.url(&format!("/api/captures/{id}/review")),
+            Some(body),
+            token,
+        )
+    };
+    let rejected = br#"{"verdict": "rejected", "reason": "hind legs swapped"}"#;
+    // refused: no token, a wrong one, a capture that does not exist, one that failed
+    assert_eq!(review("r1", rejected, None).0, 401);
+    assert_eq!(review("r1", rejected, Some("not-the-token-at-all")).0, 401);
+    let (code, body) = review("nobody", rejected, Some(token));
+    assert_eq!(code, 404, "{body}");
+    let (code, body) = review("broken", rejected, Some(token));
+    assert!(code == 409 && body.contains("failed"), "{code} {body}");
+    // refused: bodies that are not a verdict, a rejection without a reason, a long reason
+    for (bad, words) in [
+        (&br#"{"verdict": "maybe"}"#[..], "expected"),
+        (br#"{"verdict": "rejected"}"#, "needs a reason"),
+        (
+            br#"{"verdict": "rejected", "reason": "   "}"#,
+            "needs a reason",
+        ),
+        (br#"{"verdict": NaN}"#, "expected"),
+        (b"not json", "expected"),
+        (br#"{"verdict": "accepted", "by": "me"}"#, "unknown field"),
+        (br#"{"verdict": "rejected", "reason": "a\nb"}"#, "one line"),
+    ] {
+        let (code, body) = review("r1", bad, Some(token));
+        assert!(
+            code == 400 && body.contains(words),
+            "{}: {code} {body}",
+            String::from_utf8_lossy(bad)
+        );
+    }
+    let long = format!(
+        r#"{{"verdict": "accepted", "reason": "{}"}}"#,
+        "x".repeat(501)
+    );
+    assert_eq!(review("r1", long.as_bytes(), Some(token)).0, 400);
+    assert!(
+        !d.join("data/results/r1/review.json").exists(),
+        "nothing refused is kept"
+    );
+
+    // a result whose fit warned awaits review until someone gives a verdict
+    let report = d.join("data/results/r3/report.json");
+    let mut v: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
+    v["conformation"]["distortion_warning"] = "triangle areas vary 3x the template's".into();
+    std::fs::write(&report, serde_json::to_vec(&v).unwrap()).unwrap();
+    let awaiting = |d: &Daemon| -> Vec<String> {
+        d.status()["awaiting_review"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|a| a["capture"].as_str().unwrap().to_string())
+            .collect()
+    };
+    assert_eq!(awaiting(&daemon), ["r3"]);
+    let (_, page) = daemon.get("/");
+    assert!(page.contains("id=\"awaiting-review\"") && page.contains("triangle areas vary"));
+    let (code, body) = review("r3", br#"{"verdict": "accepted"}"#, Some(token));
+    assert_eq!(code, 200, "{body}");
+    assert!(awaiting(&daemon).is_empty());
+
+    // rejected: shown on its page, left out of the export and the next model
+    let (code, body) = review("r1", rejected, Some(token));
+    assert_eq!(code, 200, "{body}");
+    let (_, detail) = daemon.get("/api/captures/r1");
+    let detail: serde_json::Value = serde_json::from_str(&detail).unwrap();
+    assert_eq!(detail["review"]["verdict"], "rejected");
+    assert_eq!(detail["review"]["reason"], "hind legs swapped");
+    let (_, page) = daemon.get("/captures/r1");
+    assert!(page.contains("rejected") && page.contains("hind legs swapped"));
+    let (code, csv) = daemon.get("/api/export.csv");
+    assert_eq!(code, 200);
+    let ids: Vec<&str> = csv
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').next().unwrap())
+        .collect();
+    assert_eq!(ids, ["r0", "r2", "r3"], "{csv}");
+    let out = Command::new(BIN)
+        .args(["export", "--results"])
+        .arg(d.join("data/results"))
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success() && !stdout.contains("\nr1,"),
+        "{stdout}"
+    );
+    assert!(String::from_utf8_lossy(&out.stderr).contains("1 rejected result(s) left out"));
+    let model = d.join("data/model.json");
+    let _ = std::fs::remove_file(&model);
+    let (code, body) = request("POST", &daemon.url("/api/model/rebuild"), None, Some(token));
+    assert_eq!(code, 202, "{body}");
+    daemon.wait_for(Duration::from_secs(60), "the model", |d| {
+        model.exists() && d.status()["model_rebuilding"] == false
+    });
+    let m: serde_json::Value = serde_json::from_slice(&std::fs::read(&model).unwrap()).unwrap();
+    assert_eq!(m["samples"], serde_json::json!(["r0", "r2", "r3"]));
+    // a verdict can be changed: accepted again, r1 is back in the export
+    let (code, _) = review("r1", br#"{"verdict": "accepted"}"#, Some(token));
+    assert_eq!(code, 200);
+    let (_, csv) = daemon.get("/api/export.csv");
+    assert_eq!(csv.lines().count(), 5, "{csv}");
+}

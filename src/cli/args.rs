@@ -336,7 +336,8 @@ pub enum Cmd {
         csv: Option<PathBuf>,
     },
     /// All results as CSV (a row per capture: subject, fit figures, measurements raw
-    /// and posture-free, weight), to standard output or --out.
+    /// and posture-free, weight), to standard output or --out; results an operator
+    /// rejected (review.json) are left out.
     Export {
         /// the station's results folder
         #[arg(long)]

@@ -4,6 +4,7 @@
 
 use super::journal::{Job, State};
 use super::{BUCKETS, CaptureRequest, Shared};
+use crate::station::review::{Review, Verdict};
 use axum::Router;
 use axum::extract::{DefaultBodyLimit, Path, Query, Request, State as Ctx};
 use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
@@ -20,6 +21,7 @@ pub fn router(shared: Arc<Shared>) -> Router {
     let mutating = Router::new()
         .route("/api/trigger", post(trigger))
         .route("/api/captures/{id}/reprocess", post(reprocess))
+        .route("/api/captures/{id}/review", post(review))
         .route("/api/model/rebuild", post(rebuild))
         .route_layer(middleware::from_fn_with_state(
             shared.clone(),
@@ -138,6 +140,8 @@ struct Status {
     model_error: Option<String>,
     /// entries of `captures/` and `incoming/` the station will not take, with why
     not_taken: Vec<NotTaken>,
+    /// newest results whose fit warned of distortion, not yet accepted or rejected
+    awaiting_review: Vec<AwaitingReview>,
 }
 
 #[derive(serde::Serialize)]
@@ -206,6 +210,7 @@ fn status_of(shared: &Shared) -> Api<Status> {
                     .collect()
             })
             .unwrap_or_default(),
+        awaiting_review: awaiting_review(shared),
     })
 }
 
@@ -244,25 +249,64 @@ struct CaptureDetail {
     job: Job,
     manifest: Option<serde_json::Value>,
     report: Option<serde_json::Value>,
+    /// the operator's verdict on the result, when given
+    review: Option<Review>,
+}
+
+/// A JSON file of a capture or result, None when it is missing or not JSON.
+fn read_json(p: std::path::PathBuf) -> Option<serde_json::Value> {
+    serde_json::from_slice(&crate::files::read_limited(&p, crate::files::MAX_REPORT_BYTES).ok()?)
+        .ok()
+}
+
+/// Results that await an operator's review: the newest [`REVIEW_SCAN`] finished ones
+/// whose fit warned of distortion and that nobody has accepted or rejected yet.
+fn awaiting_review(shared: &Shared) -> Vec<AwaitingReview> {
+    let done = shared.journal().list(Some(State::Done), REVIEW_SCAN);
+    let done = shared.journal_result(done).unwrap_or_default();
+    done.into_iter()
+        .filter_map(|j| {
+            let dir = j.result?;
+            if dir.join(crate::station::review::REVIEW_FILE).exists() {
+                return None;
+            }
+            let report = read_json(dir.join("report.json"))?;
+            let warning = report["conformation"]["distortion_warning"].as_str()?;
+            Some(AwaitingReview {
+                capture: j.id,
+                warning: warning.to_string(),
+            })
+        })
+        .collect()
+}
+
+/// How many of the newest results the awaiting-review list looks at (the status page
+/// reloads every 5 s; older results are reviewed through their own page or the API).
+const REVIEW_SCAN: usize = 200;
+
+#[derive(serde::Serialize)]
+struct AwaitingReview {
+    capture: String,
+    /// the fit's distortion warning
+    warning: String,
 }
 
 fn detail(shared: &Shared, id: &str) -> Api<CaptureDetail> {
     let job = job_or_404(shared, id)?;
-    let read_json = |p: std::path::PathBuf| -> Option<serde_json::Value> {
-        serde_json::from_slice(
-            &crate::files::read_limited(&p, crate::files::MAX_REPORT_BYTES).ok()?,
-        )
-        .ok()
-    };
     let manifest = read_json(job.dir.join("manifest.json"));
     let report = job
         .result
         .as_ref()
         .and_then(|r| read_json(r.join("report.json")));
+    let review = job
+        .result
+        .as_ref()
+        .and_then(|r| crate::station::review::read(r).ok().flatten());
     Ok(CaptureDetail {
         job,
         manifest,
         report,
+        review,
     })
 }
 
@@ -403,6 +447,53 @@ async fn trigger(Ctx(shared): Ctx<Arc<Shared>>, body: axum::body::Bytes) -> Api<
             "the rig did not answer".into(),
         )),
     }
+}
+
+#[derive(serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ReviewBody {
+    verdict: Verdict,
+    #[serde(default)]
+    reason: Option<String>,
+}
+
+/// An operator accepts or rejects a finished result (a rejection with its reason); a
+/// rejected result is left out of the export, the weight fit and model rebuilds.
+async fn review(
+    Ctx(shared): Ctx<Arc<Shared>>,
+    Path(id): Path<String>,
+    body: axum::body::Bytes,
+) -> Api<Response> {
+    let job = job_or_404(&shared, &id)?;
+    let req: ReviewBody = serde_json::from_slice(&body).map_err(|e| {
+        ApiError(
+            StatusCode::BAD_REQUEST,
+            format!(
+                "expected {{\"verdict\": \"accepted\"}} or {{\"verdict\": \"rejected\", \"reason\": \"...\"}}: {e}"
+            ),
+        )
+    })?;
+    let review = Review::new(req.verdict, req.reason, super::journal::now())
+        .map_err(|e| ApiError(StatusCode::BAD_REQUEST, e))?;
+    let dir = match (job.state, job.result) {
+        (State::Done, Some(dir)) => dir,
+        (state, _) => {
+            return Err(ApiError(
+                StatusCode::CONFLICT,
+                format!(
+                    "capture '{id}' is {}: only a finished result can be reviewed",
+                    state.as_str()
+                ),
+            ));
+        }
+    };
+    let written = review.clone();
+    tokio::task::spawn_blocking(move || crate::station::review::write(&dir, &written))
+        .await
+        .map_err(internal)?
+        .map_err(internal)?;
+    tracing::info!(capture = %id, verdict = ?review.verdict, reason = review.reason.as_deref().unwrap_or(""), "result reviewed");
+    Ok(axum::Json(serde_json::json!({ "capture": id, "review": review })).into_response())
 }
 
 async fn reprocess(Ctx(shared): Ctx<Arc<Shared>>, Path(id): Path<String>) -> Api<Response> {
@@ -629,6 +720,18 @@ async fn page(Ctx(shared): Ctx<Arc<Shared>>) -> Api<Html<String>> {
         );
     }
     h.push_str("</table>");
+    if !st.awaiting_review.is_empty() {
+        h.push_str("<h2>Awaiting review</h2><ul id=\"awaiting-review\">");
+        for a in &st.awaiting_review {
+            let _ = write!(
+                h,
+                "<li><a href=\"/captures/{id}\">{id}</a>: {w}</li>",
+                id = esc(&a.capture),
+                w = esc(&a.warning)
+            );
+        }
+        h.push_str("</ul>");
+    }
     if !failed.is_empty() {
         h.push_str("<h2>Failures</h2><ul id=\"failures\">");
         for j in &failed {
@@ -717,6 +820,9 @@ async fn capture_page(Ctx(shared): Ctx<Arc<Shared>>, Path(id): Path<String>) -> 
             row("measurements", esc(e));
         }
     }
+    if j.state == State::Done {
+        row("review", review_form(&j.id, d.review.as_ref()));
+    }
     h.push_str("</table>");
     if j.state == State::Done {
         h.push_str(&viewer(&j.id));
@@ -733,6 +839,35 @@ async fn capture_page(Ctx(shared): Ctx<Arc<Shared>>, Path(id): Path<String>) -> 
     }
     h.push_str("</body></html>");
     Ok(Html(h))
+}
+
+/// A result's review: the verdict given, and the buttons that give one (through
+/// `POST /api/captures/{id}/review`, with the token when the station has one).
+fn review_form(id: &str, review: Option<&Review>) -> String {
+    let given = match review {
+        None => "<b>awaiting review</b>".to_string(),
+        Some(r) => format!(
+            "<b id=\"verdict\">{}</b> {} ({})",
+            match r.verdict {
+                Verdict::Accepted => "accepted",
+                Verdict::Rejected => "rejected",
+            },
+            esc(r.reason.as_deref().unwrap_or("")),
+            when(Some(r.at))
+        ),
+    };
+    format!(
+        "{given}<form id=\"review\" onsubmit=\"return false\">\
+<input name=\"reason\" size=\"40\" maxlength=\"500\" placeholder=\"reason (needed to reject)\"> \
+<input name=\"token\" type=\"password\" size=\"12\" placeholder=\"token, if set\"> \
+<button data-verdict=\"accepted\">accept</button> <button data-verdict=\"rejected\">reject</button> <span id=\"review-said\"></span></form>\
+<script>document.querySelectorAll('#review button').forEach(b=>b.onclick=async()=>{{\
+const f=document.getElementById('review'),h={{'Content-Type':'application/json'}};\
+if(f.token.value)h.Authorization='Bearer '+f.token.value;\
+const r=await fetch('/api/captures/{id}/review',{{method:'POST',headers:h,body:JSON.stringify({{verdict:b.dataset.verdict,reason:f.reason.value||null}})}});\
+if(r.ok)location.reload();else document.getElementById('review-said').textContent=(await r.json()).error;}});</script>",
+        id = esc(id)
+    )
 }
 
 /// The 3D view of a result: the layers' toggles, the canvas' box, the distance colour

@@ -882,6 +882,14 @@ fn rebuild_model(shared: &Shared) -> Result<usize, String> {
     let mut samples = Vec::new();
     for job in done {
         let Some(dir) = job.result else { continue };
+        match crate::station::review::left_out(&dir) {
+            Ok(false) => {}
+            Ok(true) => continue,
+            Err(e) => {
+                warn!("model: {e}; {} left out as if rejected", job.id);
+                continue;
+            }
+        }
         match crate::mesh::read_mesh(&dir.join("conformed.ply")) {
             Ok(m) => samples.push((job.id, m)),
             Err(e) => warn!("model: {e}"),

@@ -23,7 +23,8 @@ pub fn csv_field(s: &str) -> String {
 /// One CSV row per result folder under `results`: capture, subject, station,
 /// the fit's distance and distortion, every measurement (raw and posture-free) and the
 /// weight. A folder whose report cannot be read, is not JSON or names no capture is left
-/// out and listed in [`Export::skipped`] with the reason.
+/// out and listed in [`Export::skipped`] with the reason; a rejected result is left out
+/// and listed in [`Export::rejected`].
 pub fn export_csv(results: &Path) -> std::io::Result<Export> {
     let entries = std::fs::read_dir(results)?;
     let mut dirs: Vec<_> = entries
@@ -39,6 +40,7 @@ pub fn export_csv(results: &Path) -> std::io::Result<Export> {
     dirs.sort();
     let mut rows: Vec<serde_json::Value> = Vec::new();
     let mut skipped = Vec::new();
+    let mut rejected = Vec::new();
     for d in dirs {
         let file = d.join("report.json");
         let read = crate::files::read_text_limited(&file, crate::files::MAX_REPORT_BYTES)
@@ -51,9 +53,14 @@ pub fn export_csv(results: &Path) -> std::io::Result<Export> {
                 Some(serde_json::Value::String(_)) => Ok(v),
                 _ => Err("not a result report (no capture id)".into()),
             });
-        match read {
-            Ok(v) => rows.push(v),
-            Err(why) => skipped.push((file.display().to_string(), why)),
+        match (super::review::left_out(&d), read) {
+            (Ok(true), _) => rejected.push(d.display().to_string()),
+            (Err(why), _) => skipped.push((
+                d.join(super::review::REVIEW_FILE).display().to_string(),
+                format!("{why} (left out as if rejected)"),
+            )),
+            (Ok(false), Ok(v)) => rows.push(v),
+            (Ok(false), Err(why)) => skipped.push((file.display().to_string(), why)),
         }
     }
     // the columns: every measurement name any result has, in first-seen order
@@ -123,7 +130,11 @@ pub fn export_csv(results: &Path) -> std::io::Result<Export> {
         row.extend(["kg", "low", "high"].map(|k| text(w.and_then(|w| w.get(k)))));
         s += &(row.join(",") + "\n");
     }
-    Ok(Export { csv: s, skipped })
+    Ok(Export {
+        csv: s,
+        skipped,
+        rejected,
+    })
 }
 
 /// [`export_csv`]'s table and the result folders it left out.
@@ -131,4 +142,6 @@ pub struct Export {
     pub csv: String,
     /// (report file, why it was left out)
     pub skipped: Vec<(String, String)>,
+    /// result folders an operator rejected (`review.json`), left out
+    pub rejected: Vec<String>,
 }

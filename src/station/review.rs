@@ -1,0 +1,111 @@
+//! An operator's verdict on one result: accepted, or rejected with a reason. It is kept
+//! beside the result it judges (`results/<id>/review.json`), so a reprocessed capture's
+//! new result starts unreviewed, and whatever reads the results folder (the export, the
+//! weight fit, the daemon's model rebuild) leaves a rejected result out.
+
+use std::path::Path;
+
+pub const REVIEW_FILE: &str = "review.json";
+
+/// Longest reason kept (a sentence or two, not a document).
+pub const MAX_REASON_CHARS: usize = 500;
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Verdict {
+    Accepted,
+    Rejected,
+}
+
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Review {
+    pub verdict: Verdict,
+    /// why (required for a rejection)
+    #[serde(default)]
+    pub reason: Option<String>,
+    /// when it was given, Unix seconds
+    pub at: f64,
+}
+
+impl Review {
+    /// A verdict as given: a rejection must say why; a reason is one line of at most
+    /// [`MAX_REASON_CHARS`] characters.
+    pub fn new(verdict: Verdict, reason: Option<String>, at: f64) -> Result<Review, String> {
+        let reason = reason
+            .map(|r| r.trim().to_string())
+            .filter(|r| !r.is_empty());
+        if let Some(r) = &reason {
+            if r.chars().count() > MAX_REASON_CHARS {
+                return Err(format!(
+                    "the reason has {} characters; at most {MAX_REASON_CHARS}",
+                    r.chars().count()
+                ));
+            }
+            if r.chars().any(char::is_control) {
+                return Err("the reason must be one line without control characters".into());
+            }
+        }
+        if verdict == Verdict::Rejected && reason.is_none() {
+            return Err("a rejection needs a reason (what is wrong with the result)".into());
+        }
+        Ok(Review {
+            verdict,
+            reason,
+            at,
+        })
+    }
+}
+
+/// The review of the result in `dir`, None when it has none.
+pub fn read(dir: &Path) -> Result<Option<Review>, String> {
+    let path = dir.join(REVIEW_FILE);
+    if !path.exists() {
+        return Ok(None);
+    }
+    let bytes = crate::files::read_limited(&path, crate::files::MAX_REPORT_BYTES)
+        .map_err(|e| e.to_string())?;
+    serde_json::from_slice(&bytes)
+        .map(Some)
+        .map_err(|e| format!("{}: not a review: {e}", path.display()))
+}
+
+/// Writes the review of the result in `dir` (atomically, replacing an older one).
+pub fn write(dir: &Path, review: &Review) -> Result<(), crate::files::FileError> {
+    let json = serde_json::to_vec_pretty(review).expect("a review serialises");
+    crate::files::write_atomic(&dir.join(REVIEW_FILE), &json)
+}
+
+/// Whether the result in `dir` is to be left out of exports, models and fits: it was
+/// rejected. A review that cannot be read is an error, which callers take as rejected (an
+/// operator meant something, and a result is easier to put back than to take out of a
+/// model already built) and name.
+pub fn left_out(dir: &Path) -> Result<bool, String> {
+    read(dir).map(|r| r.is_some_and(|r| r.verdict == Verdict::Rejected))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_rejection_needs_a_reason_and_reasons_are_one_short_line() {
+        assert!(Review::new(Verdict::Rejected, None, 0.0).is_err());
+        assert!(Review::new(Verdict::Rejected, Some("  ".into()), 0.0).is_err());
+        assert!(Review::new(Verdict::Rejected, Some("a\nb".into()), 0.0).is_err());
+        assert!(Review::new(Verdict::Accepted, Some("x".repeat(501)), 0.0).is_err());
+        let r = Review::new(Verdict::Accepted, None, 1.0).unwrap();
+        assert_eq!(r.reason, None);
+        let d = tempfile::tempdir().unwrap();
+        assert_eq!(left_out(d.path()), Ok(false));
+        let r = Review::new(Verdict::Rejected, Some(" legs swapped ".into()), 2.0).unwrap();
+        write(d.path(), &r).unwrap();
+        assert_eq!(
+            read(d.path()).unwrap().unwrap().reason.as_deref(),
+            Some("legs swapped")
+        );
+        assert_eq!(left_out(d.path()), Ok(true));
+        std::fs::write(d.path().join(REVIEW_FILE), "{").unwrap();
+        assert!(left_out(d.path()).unwrap_err().contains("not a review"));
+    }
+}
