@@ -6,7 +6,7 @@
 APT_PACKAGES := libopencv-dev clang libclang-dev pkg-config libudev-dev fonts-dejavu-core libjs-three
 # the status page's browser test runs Debian's headless Chromium; the journal and worker
 # tests start throwaway PostgreSQL clusters with Debian's server
-TEST_PACKAGES := chromium postgresql
+TEST_PACKAGES := chromium chromium-driver postgresql
 CARGO ?= cargo
 DEMO_OUT ?= demo-output
 

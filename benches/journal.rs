@@ -27,6 +27,7 @@ fn run(label: &str, open: &(dyn Fn() -> journal::Journal + Sync), workers: usize
                     let done = Finish::Done {
                         result: "r".into(),
                         seconds: serde_json::json!({}),
+                        landmarks: None,
                     };
                     let mut n = 0;
                     while let Some(job) = j.claim(&name, 30.0).unwrap() {

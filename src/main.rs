@@ -68,6 +68,7 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
             json,
             parent,
             stage,
+            landmarks,
         } => {
             if let Some(pid) = parent {
                 cli::exit_with_parent(pid);
@@ -79,13 +80,27 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
                 jobs::Write::Publish
             };
             if json {
-                let r = jobs::process(&capture, &config, &out, write, &mut |_| {});
+                let r = jobs::process(
+                    &capture,
+                    &config,
+                    &out,
+                    landmarks.as_deref(),
+                    write,
+                    &mut |_| {},
+                );
                 let line = serde_json::to_string(&jobs::ProcessOutcome::of(&r, write));
                 println!("{}", line.expect("an outcome serialises"));
                 r?;
             } else {
                 let (pb, mut tick) = progress::pipeline(30);
-                let r = jobs::process(&capture, &config, &out, write, &mut tick);
+                let r = jobs::process(
+                    &capture,
+                    &config,
+                    &out,
+                    landmarks.as_deref(),
+                    write,
+                    &mut tick,
+                );
                 pb.finish_and_clear();
                 let (dir, report) = r?;
                 println!("{report}\nwrote {}", dir.display());

@@ -1038,7 +1038,7 @@ fn the_capture_page_draws_the_scan_the_fit_and_its_measurements_in_3d() {
     let shot = d.join("capture.png");
     let out = chromium(
         &[
-            "--window-size=1000,1400",
+            "--window-size=1360,1400",
             &format!("--screenshot={}", shot.display()),
         ],
         &url,
@@ -1207,4 +1207,317 @@ fn reviews_are_checked_and_a_rejected_result_leaves_the_export_and_the_model() {
     assert_eq!(code, 200);
     let (_, csv) = daemon.get("/api/export.csv");
     assert_eq!(csv.lines().count(), 5, "{csv}");
+}
+
+/// A WebDriver session on Debian's chromedriver driving headless Chromium; the driver
+/// listens on 127.0.0.1 only and is killed with its guard.
+struct Browser {
+    driver: Child,
+    url: String,
+    session: String,
+}
+
+impl Browser {
+    fn start(profile: &Path) -> Browser {
+        let port = free_port();
+        let driver = Command::new("chromedriver")
+            .arg(format!("--port={port}"))
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("chromedriver is needed for the landmark test: `make test` installs Debian's chromium-driver package");
+        let url = format!("http://127.0.0.1:{port}");
+        let t = Instant::now();
+        while request("GET", &format!("{url}/status"), None, None).0 != 200 {
+            assert!(
+                t.elapsed() < Duration::from_secs(30),
+                "chromedriver did not answer"
+            );
+            std::thread::sleep(Duration::from_millis(100));
+        }
+        let caps = serde_json::json!({"capabilities": {"alwaysMatch": {
+            "browserName": "chrome",
+            "goog:chromeOptions": {"args": [
+                "--headless=new", "--no-sandbox", "--disable-gpu", "--no-first-run",
+                "--disable-background-networking", "--disable-component-update",
+                "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
+                "--window-size=1400,1000",
+                format!("--user-data-dir={}", profile.display()),
+            ]}
+        }}});
+        let mut b = Browser {
+            driver,
+            url,
+            session: String::new(),
+        };
+        let v = b.call("session", caps);
+        b.session = v["sessionId"].as_str().expect("a session").to_string();
+        b
+    }
+
+    fn call(&self, path: &str, body: serde_json::Value) -> serde_json::Value {
+        let (code, text) = request(
+            "POST",
+            &format!("{}/{path}", self.url),
+            Some(body.to_string().as_bytes()),
+            None,
+        );
+        let v: serde_json::Value = serde_json::from_str(&text).unwrap_or_default();
+        assert_eq!(code, 200, "WebDriver {path}: {text}");
+        v["value"].clone()
+    }
+
+    fn go(&self, url: &str) {
+        self.call(
+            &format!("session/{}/url", self.session),
+            serde_json::json!({ "url": url }),
+        );
+    }
+
+    /// Runs `script` in the page (its arguments `args`); returns what it returns.
+    fn run(&self, script: &str, args: serde_json::Value) -> serde_json::Value {
+        self.call(
+            &format!("session/{}/execute/sync", self.session),
+            serde_json::json!({ "script": script, "args": args }),
+        )
+    }
+
+    /// Runs `script`, which calls its last argument with the answer when done.
+    fn run_async(&self, script: &str, args: serde_json::Value) -> serde_json::Value {
+        self.call(
+            &format!("session/{}/execute/async", self.session),
+            serde_json::json!({ "script": script, "args": args }),
+        )
+    }
+
+    fn wait_for(&self, script: &str, what: &str) {
+        let t = Instant::now();
+        while self.run(script, serde_json::json!([])) != serde_json::json!(true) {
+            assert!(t.elapsed() < Duration::from_secs(60), "waited for {what}");
+            std::thread::sleep(Duration::from_millis(200));
+        }
+    }
+}
+
+impl Drop for Browser {
+    fn drop(&mut self) {
+        if !self.session.is_empty() {
+            let agent: ureq::Agent = ureq::Agent::config_builder()
+                .http_status_as_error(false)
+                .build()
+                .into();
+            let _ = agent
+                .delete(&format!("{}/session/{}", self.url, self.session))
+                .call();
+        }
+        let _ = self.driver.kill();
+        let _ = self.driver.wait();
+    }
+}
+
+#[test]
+fn landmarks_placed_on_the_page_refit_the_capture_by_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let (_, sets) = simulated();
+    let port = free_port();
+    let token = "landmark-token-0123456789";
+    let quoted = format!("\"{token}\"");
+    let cfg = station(d, port, "", &[("token", &quoted)]);
+    let captures = d.join("data/captures");
+    std::fs::create_dir_all(&captures).unwrap();
+    let set = drop_set(&sets[3], &captures, "lm-1");
+    let daemon = Daemon::start(&cfg, port, &[]);
+    daemon.wait_settled(1, Duration::from_secs(60));
+    let result = d.join("data/results/lm-1");
+    let read_view = || -> conformd::station::view::View {
+        serde_json::from_slice(&std::fs::read(result.join("view.json")).unwrap()).unwrap()
+    };
+    let automatic = read_view();
+    let scan = conformd::mesh::read_mesh(&result.join("scan.ply")).unwrap();
+    let (lo, hi) = scan.bounding_box().unwrap();
+    let diag = (hi - lo).norm();
+    // where each landmark truly is: the station template's landmark vertex, found on the
+    // finer posed subject the set was rendered from (the same figure, in the same vertex
+    // order as its rest shape), moved to the nearest scan point (where a click lands);
+    // landmarks the cameras do not see (no scan point within 0.5% of the diagonal: the
+    // belly, the chin) cannot be clicked and are left out
+    let truth = conformd::mesh::read_mesh(&set.join("truth.ply")).unwrap();
+    let rest = conformd::template::build(conformd::template::Kind::Pig, 20_000).mesh;
+    assert_eq!(rest.vertices.len(), truth.vertices.len());
+    let template = conformd::template::build(conformd::template::Kind::Pig, 1500);
+    let placed: Vec<serde_json::Value> = template
+        .landmarks()
+        .iter()
+        .filter_map(|l| {
+            let conformd::mesh::LandmarkPos::Vertex(i) = l.pos else {
+                unreachable!()
+            };
+            let v = template.mesh.vertices[i as usize];
+            let j = (0..rest.vertices.len())
+                .min_by(|&a, &b| {
+                    (rest.vertices[a] - v)
+                        .norm()
+                        .total_cmp(&(rest.vertices[b] - v).norm())
+                })
+                .unwrap();
+            let t = truth.vertices[j];
+            let p = scan
+                .vertices
+                .iter()
+                .min_by(|a, b| (*a - t).norm().total_cmp(&(*b - t).norm()))
+                .unwrap();
+            ((p - t).norm() < 0.005 * diag)
+                .then(|| serde_json::json!({"name": l.name, "position": [p.x, p.y, p.z]}))
+        })
+        .collect();
+    assert!(placed.len() >= 12, "{} landmarks seen", placed.len());
+    let at = |v: &serde_json::Value| -> conformd::mesh::V3 {
+        let p: Vec<f64> = serde_json::from_value(v["position"].clone()).unwrap();
+        conformd::mesh::V3::new(p[0], p[1], p[2])
+    };
+    let error_of = |view: &conformd::station::view::View| -> f64 {
+        placed
+            .iter()
+            .map(|p| {
+                let l = view.landmarks.iter().find(|l| l.name == p["name"]).unwrap();
+                let q = conformd::mesh::V3::new(
+                    l.position[0] as f64,
+                    l.position[1] as f64,
+                    l.position[2] as f64,
+                );
+                (q - at(p)).norm() / diag
+            })
+            .fold(0.0, f64::max)
+    };
+
+    // the API refuses what the fit could not use, and keeps nothing of it
+    let post = |body: &[u8], token: Option<&str>| {
+        request(
+            "POST",
+            &daemon.url("/api/captures/lm-1/landmarks"),
+            Some(body),
+            token,
+        )
+    };
+    let body = |lms: &[serde_json::Value]| serde_json::json!({ "landmarks": lms }).to_string();
+    let good = body(&placed);
+    assert_eq!(post(good.as_bytes(), None).0, 401);
+    assert_eq!(
+        post(good.as_bytes(), Some("a-wrong-token-of-length")).0,
+        401
+    );
+    let (code, text) = request(
+        "POST",
+        &daemon.url("/api/captures/nobody/landmarks"),
+        Some(good.as_bytes()),
+        Some(token),
+    );
+    assert_eq!(code, 404, "{text}");
+    let mut misspelt = placed.clone();
+    misspelt[0]["name"] = "snoot".into();
+    let mut far = placed.clone();
+    far[1]["position"] = serde_json::json!([1e6, 0.0, 0.0]);
+    for (bad, words) in [
+        (body(&placed[..3]), "at least 4"),
+        (
+            body(&misspelt),
+            "'snoot' is not one of the template's landmarks",
+        ),
+        (body(&far), "off the scan"),
+        (
+            good.replace(&placed[2]["position"][0].to_string(), "NaN"),
+            "expected",
+        ),
+        ("{\"landmarks\": 3}".into(), "expected"),
+        ("[]".into(), "expected"),
+    ] {
+        let (code, text) = post(bad.as_bytes(), Some(token));
+        assert!(code == 400 && text.contains(words), "{bad}: {code} {text}");
+    }
+    assert!(!d.join("data/landmarks/lm-1.txt").exists());
+
+    // placed through the page's own calls: one by a click on the scan in the view, then
+    // every landmark where it belongs, sent with the page's button call
+    let browser = Browser::start(&d.join("chrome-lm"));
+    browser.go(&daemon.url("/captures/lm-1"));
+    browser.wait_for(
+        "const p = document.getElementById('landmarks-panel'); return !!p && p.dataset.state === 'ready';",
+        "the landmark panel",
+    );
+    let names = browser.run(
+        "return window.conformdViewer.landmarkNames;",
+        serde_json::json!([]),
+    );
+    assert_eq!(
+        names.as_array().unwrap().len(),
+        automatic.landmarks.len(),
+        "{names}"
+    );
+    let clicked = browser.run(
+        "const v = window.conformdViewer; v.select(arguments[0]);\
+         const c = document.querySelector('#viewer canvas').getBoundingClientRect();\
+         return v.clickAt(c.left + c.width / 2, c.top + c.height / 2);",
+        serde_json::json!([placed[0]["name"]]),
+    );
+    let hit = at(&serde_json::json!({ "position": clicked }));
+    assert!(
+        scan.vertices.iter().any(|v| (v - hit).norm() < 1e-6),
+        "a click places a scan point: {clicked}"
+    );
+    let listed = browser.run(
+        "return document.querySelector(`#landmark-list li[data-name=\"${arguments[0]}\"]`).textContent;",
+        serde_json::json!([placed[0]["name"]]),
+    );
+    assert!(listed.as_str().unwrap().contains("placed at"), "{listed}");
+    let n = browser.run(
+        "const v = window.conformdViewer; for (const l of arguments[0]) v.place(l.name, l.position);\
+         return v.placed().length;",
+        serde_json::json!([placed]),
+    );
+    assert_eq!(n, placed.len());
+    let sent = browser.run_async(
+        "window.conformdViewer.submitLandmarks(arguments[0]).then(arguments[1]);",
+        serde_json::json!([token]),
+    );
+    assert_eq!(sent["status"], 202, "{sent}");
+    drop(browser);
+
+    // fitted again by them: the journal, the report and the page say so, and each
+    // template landmark now sits where it was placed
+    daemon.wait_for(Duration::from_secs(90), "the refit", |_| {
+        journal(d).get("lm-1").unwrap().unwrap().landmarks.is_some()
+    });
+    daemon.wait_settled(1, Duration::from_secs(30));
+    let job = journal(d).get("lm-1").unwrap().unwrap();
+    let names: Vec<&str> = placed.iter().map(|p| p["name"].as_str().unwrap()).collect();
+    assert_eq!(job.landmarks.as_deref(), Some(names.join(", ").as_str()));
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(result.join("report.json")).unwrap()).unwrap();
+    let used = report["manual_landmarks"].as_array().unwrap();
+    assert_eq!(used.len(), placed.len());
+    for (u, p) in used.iter().zip(&placed) {
+        assert_eq!(u["name"], p["name"]);
+        assert!((at(u) - at(p)).norm() < 1e-9 * diag, "{u} vs {p}");
+    }
+    let (_, page) = daemon.get("/captures/lm-1");
+    assert!(page.contains("placed by an operator"), "the page says so");
+    let (_, detail) = daemon.get("/api/captures/lm-1");
+    let detail: serde_json::Value = serde_json::from_str(&detail).unwrap();
+    assert_eq!(
+        detail["placed_landmarks"].as_array().unwrap().len(),
+        placed.len()
+    );
+    let (before, after) = (error_of(&automatic), error_of(&read_view()));
+    eprintln!(
+        "landmarks' worst distance from where they were placed, of the scan's diagonal: automatic {:.2}%, by the placed landmarks {:.2}%",
+        100.0 * before,
+        100.0 * after
+    );
+    assert!(after < 0.005, "{:.3}% of the diagonal", 100.0 * after);
+    assert!(after < before / 4.0, "{before} -> {after}");
+    assert!(
+        !set.join("landmarks.txt").exists(),
+        "the capture set is not touched"
+    );
 }

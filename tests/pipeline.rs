@@ -82,7 +82,7 @@ fn process_gives_what_reconstruct_then_conform_give() {
     let cfg = station_file(d, "");
     let results = d.join("results");
     let (folder, report) =
-        jobs::process(set, &cfg, &results, jobs::Write::Publish, &mut |_| {}).unwrap();
+        jobs::process(set, &cfg, &results, None, jobs::Write::Publish, &mut |_| {}).unwrap();
     let id = set.file_name().unwrap().to_string_lossy().to_string();
     assert_eq!(folder, results.join(&id));
     for f in RESULT_FILES {
@@ -254,7 +254,7 @@ fn a_killed_process_leaves_no_partial_result() {
 }
 
 fn failure(pipeline: &mut Pipeline, set: &Path) -> StageError {
-    match pipeline.process(set, &mut Control::default()) {
+    match pipeline.process(set, None, &mut Control::default()) {
         Err(e) => e,
         Ok(_) => panic!("{} was processed", set.display()),
     }
@@ -418,7 +418,9 @@ fn bad_capture_sets_fail_at_their_stage_naming_the_file() {
 
     // a results folder that cannot be made: the machine's fault, retryable
     let (_, good) = simulated();
-    let processed = pipeline.process(good, &mut Control::default()).unwrap();
+    let processed = pipeline
+        .process(good, None, &mut Control::default())
+        .unwrap();
     let blocked = d.join("blocked");
     std::fs::write(&blocked, "a file where the results folder should be").unwrap();
     let e = processed.write(&blocked).unwrap_err();
@@ -428,6 +430,7 @@ fn bad_capture_sets_fail_at_their_stage_naming_the_file() {
     let stop = std::sync::atomic::AtomicBool::new(true);
     let e = match pipeline.process(
         good,
+        None,
         &mut Control {
             cancel: Some(&stop),
             progress: None,

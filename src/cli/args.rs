@@ -78,6 +78,10 @@ pub enum Cmd {
         /// worker to publish once the journal says the job is still its own
         #[arg(long, hide = true)]
         stage: bool,
+        /// scan landmarks to fit by (`name x y z` lines, or MeshLab .pp), paired by name
+        /// with the template's: what an operator placed on the capture page
+        #[arg(long)]
+        landmarks: Option<PathBuf>,
     },
     /// Run the station: capture on trigger, watch captures/ and incoming/, process every
     /// set once (journal, worker processes), serve the HTTP API and status page.

@@ -4,6 +4,7 @@
 
 use super::journal::{Job, State};
 use super::{BUCKETS, CaptureRequest, Shared};
+use crate::station::pipeline::PlacedLandmark;
 use crate::station::review::{Review, Verdict};
 use axum::Router;
 use axum::extract::{DefaultBodyLimit, Path, Query, Request, State as Ctx};
@@ -22,6 +23,7 @@ pub fn router(shared: Arc<Shared>) -> Router {
         .route("/api/trigger", post(trigger))
         .route("/api/captures/{id}/reprocess", post(reprocess))
         .route("/api/captures/{id}/review", post(review))
+        .route("/api/captures/{id}/landmarks", post(place_landmarks))
         .route("/api/model/rebuild", post(rebuild))
         .route_layer(middleware::from_fn_with_state(
             shared.clone(),
@@ -251,6 +253,8 @@ struct CaptureDetail {
     report: Option<serde_json::Value>,
     /// the operator's verdict on the result, when given
     review: Option<Review>,
+    /// the scan landmarks an operator placed for this capture (its next fits use them)
+    placed_landmarks: Option<Vec<PlacedLandmark>>,
 }
 
 /// A JSON file of a capture or result, None when it is missing or not JSON.
@@ -302,11 +306,13 @@ fn detail(shared: &Shared, id: &str) -> Api<CaptureDetail> {
         .result
         .as_ref()
         .and_then(|r| crate::station::review::read(r).ok().flatten());
+    let placed_landmarks = read_placed(&shared.cfg.station.landmarks(), id);
     Ok(CaptureDetail {
         job,
         manifest,
         report,
         review,
+        placed_landmarks,
     })
 }
 
@@ -494,6 +500,108 @@ async fn review(
         .map_err(internal)?;
     tracing::info!(capture = %id, verdict = ?review.verdict, reason = review.reason.as_deref().unwrap_or(""), "result reviewed");
     Ok(axum::Json(serde_json::json!({ "capture": id, "review": review })).into_response())
+}
+
+/// The landmarks an operator placed for capture `id`, None when none were (or their file
+/// cannot be read: the job that reads it names why).
+fn read_placed(dir: &std::path::Path, id: &str) -> Option<Vec<PlacedLandmark>> {
+    let lms = crate::mesh::read_landmarks(&dir.join(format!("{id}.txt"))).ok()?;
+    Some(
+        lms.into_iter()
+            .filter_map(|l| match l.pos {
+                crate::mesh::LandmarkPos::Point(p) => Some(PlacedLandmark {
+                    name: l.name,
+                    position: [p.x, p.y, p.z],
+                }),
+                crate::mesh::LandmarkPos::Vertex(_) => None,
+            })
+            .collect(),
+    )
+}
+
+#[derive(serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+struct LandmarksBody {
+    landmarks: Vec<PlacedLandmark>,
+}
+
+/// An operator's scan landmarks for a finished result: checked against the template's
+/// landmark names (the result's view.json) and its scan, kept in `landmarks/<id>.txt`
+/// (never in the capture set), and the capture queued again to be fitted by them.
+async fn place_landmarks(
+    Ctx(shared): Ctx<Arc<Shared>>,
+    Path(id): Path<String>,
+    body: axum::body::Bytes,
+) -> Api<Response> {
+    let job = job_or_404(&shared, &id)?;
+    let req: LandmarksBody = serde_json::from_slice(&body).map_err(|e| {
+        ApiError(
+            StatusCode::BAD_REQUEST,
+            format!(
+                "expected {{\"landmarks\": [{{\"name\": \"...\", \"position\": [x, y, z]}}, ...]}}: {e}"
+            ),
+        )
+    })?;
+    let dir = match (job.state, job.result) {
+        (State::Done, Some(dir)) => dir,
+        (state, _) => {
+            return Err(ApiError(
+                StatusCode::CONFLICT,
+                format!(
+                    "capture '{id}' is {}: landmarks are placed on a finished result's scan",
+                    state.as_str()
+                ),
+            ));
+        }
+    };
+    let (folder, cid) = (shared.cfg.station.landmarks(), id.clone());
+    let checked = tokio::task::spawn_blocking(move || -> Result<usize, ApiError> {
+        let conflict = |e: String| ApiError(StatusCode::CONFLICT, e);
+        let view: crate::station::view::View = serde_json::from_slice(
+            &crate::files::read_limited(
+                &dir.join(crate::station::view::VIEW_FILE),
+                crate::files::MAX_REPORT_BYTES,
+            )
+            .map_err(|e| {
+                conflict(format!(
+                    "{e}: this result does not say which landmarks the template has; reprocess it once"
+                ))
+            })?,
+        )
+        .map_err(|e| conflict(format!("the result's view.json: {e}")))?;
+        let names: Vec<String> = view.landmarks.into_iter().map(|l| l.name).collect();
+        if names.is_empty() {
+            return Err(conflict(
+                "the station's template has no landmarks to place ([template] landmarks)".into(),
+            ));
+        }
+        let scan =
+            crate::mesh::read_mesh(&dir.join("scan.ply")).map_err(|e| conflict(e.to_string()))?;
+        let lms = crate::station::placed::check(&req.landmarks, &names, &scan)
+            .map_err(|e| ApiError(StatusCode::BAD_REQUEST, e))?;
+        std::fs::create_dir_all(&folder).map_err(internal)?;
+        crate::files::write_atomic(
+            &folder.join(format!("{cid}.txt")),
+            crate::station::placed::text(&lms, &cid).as_bytes(),
+        )
+        .map_err(internal)?;
+        Ok(lms.len())
+    })
+    .await
+    .map_err(internal)??;
+    if !shared.journal().reprocess(&id).map_err(internal)? {
+        return Err(ApiError(
+            StatusCode::CONFLICT,
+            format!("capture '{id}' is being processed now; its next run uses the landmarks"),
+        ));
+    }
+    shared.wake.notify_one();
+    tracing::info!(capture = %id, landmarks = checked, "manual landmarks placed; queued again");
+    Ok((
+        StatusCode::ACCEPTED,
+        axum::Json(serde_json::json!({ "capture": id, "landmarks": checked, "state": "queued" })),
+    )
+        .into_response())
 }
 
 async fn reprocess(Ctx(shared): Ctx<Arc<Shared>>, Path(id): Path<String>) -> Api<Response> {
@@ -767,6 +875,18 @@ async fn capture_page(Ctx(shared): Ctx<Arc<Shared>>, Path(id): Path<String>) -> 
     );
     row("subject", subject_link(j.subject.as_deref()));
     row("attempts", j.attempts.to_string());
+    if j.state == State::Done {
+        row(
+            "landmarks",
+            match &j.landmarks {
+                Some(names) => format!(
+                    "<b id=\"manual-landmarks\">placed by an operator</b>: {}",
+                    esc(names)
+                ),
+                None => "automatic (none placed)".into(),
+            },
+        );
+    }
     row("queued", when(Some(j.queued_at)));
     row("finished", when(j.finished_at));
     if let Some(e) = &j.error {
@@ -889,8 +1009,12 @@ fn viewer(id: &str) -> String {
     .collect();
     format!(
         "<h2>3D view</h2><div id=\"viewer-controls\">{toggles}<br><small>drag to turn, scroll to zoom, right-drag to pan</small></div>\
-<div id=\"viewer\" data-capture=\"{id}\" data-state=\"loading\" style=\"width:900px;max-width:100%;height:560px;border:1px solid #ccc\"></div>\
-<div id=\"viewer-bar\" style=\"display:none;width:900px;max-width:100%\"><div>distance to the scan</div><div style=\"height:12px;background:linear-gradient(to right,#440154,#3b528b,#21918c,#5ec962,#fde725)\"></div><span class=\"lo\"></span><span class=\"hi\" style=\"float:right\"></span></div>\
+<div style=\"display:flex;gap:1.5em;align-items:flex-start;flex-wrap:wrap\"><div><div id=\"viewer\" data-capture=\"{id}\" data-state=\"loading\" style=\"width:900px;max-width:100%;height:560px;border:1px solid #ccc\"></div>\
+<div id=\"viewer-bar\" style=\"display:none;width:900px;max-width:100%\"><div>distance to the scan</div><div style=\"height:12px;background:linear-gradient(to right,#440154,#3b528b,#21918c,#5ec962,#fde725)\"></div><span class=\"lo\"></span><span class=\"hi\" style=\"float:right\"></span></div></div>\
+<div id=\"landmarks-panel\" data-state=\"loading\" style=\"max-width:340px\"><h3 style=\"margin-top:0\">Landmarks</h3><p>Pick a name, then click the scan where it belongs (at least 4, not all in one plane); \
+the capture is then fitted again by them and its result replaced.</p><ol id=\"landmark-list\"></ol>\
+<input id=\"landmarks-token\" type=\"password\" size=\"12\" placeholder=\"token, if set\"> <button type=\"button\" id=\"landmarks-submit\">reprocess with these landmarks</button> \
+<button type=\"button\" id=\"landmarks-clear\">clear</button> <span id=\"landmarks-said\"></span></div></div>\
 <script src=\"/static/three/three.min.js\"></script><script src=\"/static/three/OrbitControls.js\"></script><script src=\"/static/three/PLYLoader.js\"></script><script src=\"/static/viewer.js\"></script>",
         id = esc(id)
     )

@@ -185,6 +185,7 @@ impl Shared {
             exe: self.exe.clone(),
             config: self.cfg.file.clone(),
             results: self.results_dir(),
+            landmarks: self.cfg.station.landmarks(),
             threads: std::thread::available_parallelism()
                 .map(|n| (n.get() / self.workers.max(1)).max(1))
                 .unwrap_or(1),

@@ -18,6 +18,9 @@ pub struct JobSpec {
     /// the station file the child reads
     pub config: PathBuf,
     pub results: PathBuf,
+    /// where operators' scan landmarks wait (`<id>.txt`): a job whose capture has a
+    /// file there is fitted by them
+    pub landmarks: PathBuf,
     /// rayon threads of the child
     pub threads: usize,
     pub timeout: Duration,
@@ -47,8 +50,12 @@ pub async fn run_child(spec: &JobSpec, job: &Job, abort: &tokio::sync::Notify) -
         .arg("--out")
         .arg(&spec.results)
         .arg("--json")
-        .arg("--stage")
-        .arg("--parent")
+        .arg("--stage");
+    let landmarks = spec.landmarks.join(format!("{}.txt", job.id));
+    if landmarks.is_file() {
+        cmd.arg("--landmarks").arg(&landmarks);
+    }
+    cmd.arg("--parent")
         .arg(std::process::id().to_string())
         .env("RAYON_NUM_THREADS", spec.threads.to_string())
         .stdin(std::process::Stdio::null())
@@ -175,12 +182,14 @@ pub fn record(
                 let how = Finish::Done {
                     result,
                     seconds: seconds.clone(),
+                    landmarks: o.landmarks.clone(),
                 };
                 return finish(j, worker, job, &how, nothing, Recorded::Done(seconds));
             };
             let how = Finish::Done {
                 result: spec.results.join(&job.id),
                 seconds: seconds.clone(),
+                landmarks: o.landmarks.clone(),
             };
             let mut publish = || {
                 crate::station::pipeline::publish(&spec.results, &job.id, &staged)

@@ -1,8 +1,10 @@
 // The capture page's 3D view: the scan's points and the conformed mesh overlaid (three.js,
 // Debian's libjs-three), the mesh coloured by each vertex's distance to the scan, the
 // template's landmarks and every measurement drawn where it was taken, with its value.
-// It renders only when something changed, so a 100k-point scan stays light. The state is
-// left on the container (data-state, counts) and in window.conformdViewer for tests.
+// It renders only when something changed, so a 100k-point scan stays light. An operator
+// may place the template's landmarks on the scan (pick a name, click the scan) and have
+// the capture fitted again by them. The state is left on the container (data-state,
+// counts) and in window.conformdViewer, whose calls the page's own buttons use too.
 (function () {
   "use strict";
   const box = document.getElementById("viewer");
@@ -192,6 +194,7 @@
       input.addEventListener("change", show);
       show();
     }
+    placing(v, r, points);
     box.dataset.scanPoints = scanGeo.attributes.position.count;
     box.dataset.meshVertices = n;
     box.dataset.landmarks = state.landmarks.length;
@@ -199,4 +202,117 @@
     box.dataset.state = "ready";
     render();
   }).catch((e) => fail(e.message));
+
+  // Landmark placing: a list of the template's landmark names beside the view; the
+  // selected name goes where the scan is clicked (a click, not the end of a drag).
+  function placing(v, r, points) {
+    const panel = document.getElementById("landmarks-panel");
+    const names = ((v && v.landmarks) || []).map((l) => l.name);
+    if (!panel || !names.length) return;
+    const placed = new Map(); // name -> {position, marker}
+    const dot = new THREE.SphereBufferGeometry(r * 0.014, 12, 8);
+    const mat = new THREE.MeshBasicMaterial({ color: 0x0a8f3c, depthTest: false });
+    let selected = null;
+    const list = panel.querySelector("#landmark-list");
+    const said = panel.querySelector("#landmarks-said");
+    const items = new Map();
+    for (const name of names) {
+      const li = document.createElement("li");
+      li.dataset.name = name;
+      const b = document.createElement("button");
+      b.type = "button";
+      b.textContent = name;
+      b.onclick = () => select(name);
+      const where = document.createElement("span");
+      where.className = "where";
+      where.textContent = " not placed";
+      li.append(b, where);
+      list.appendChild(li);
+      items.set(name, li);
+    }
+    function show() {
+      for (const [name, li] of items) {
+        const p = placed.get(name);
+        li.querySelector(".where").textContent = p
+          ? " placed at (" + p.position.map((c) => c.toFixed(3)).join(", ") + ")"
+          : " not placed";
+        li.style.fontWeight = name === selected ? "bold" : "";
+      }
+      panel.dataset.placed = placed.size;
+      render();
+    }
+    function select(name) {
+      if (!items.has(name)) throw new Error("'" + name + "' is not one of the template's landmarks");
+      selected = name;
+      show();
+    }
+    function place(name, position) {
+      if (!items.has(name)) throw new Error("'" + name + "' is not one of the template's landmarks");
+      const old = placed.get(name);
+      if (old) scene.remove(old.marker);
+      const marker = new THREE.Mesh(dot, mat);
+      marker.renderOrder = 20;
+      marker.name = "placed:" + name;
+      marker.position.fromArray(position);
+      scene.add(marker);
+      placed.set(name, { position: Array.from(position), marker: marker });
+      // the next unplaced name is selected, so a round of clicks places them in order
+      selected = names.find((n) => !placed.has(n)) || null;
+      show();
+    }
+    function unplace(name) {
+      const old = placed.get(name);
+      if (old) scene.remove(old.marker);
+      placed.delete(name);
+      show();
+    }
+    // the scan point under a point of the canvas (client coordinates), or null
+    const ray = new THREE.Raycaster();
+    ray.params.Points.threshold = r * 0.01;
+    function pickAt(x, y) {
+      const rect = renderer.domElement.getBoundingClientRect();
+      const ndc = new THREE.Vector2(((x - rect.left) / rect.width) * 2 - 1, -((y - rect.top) / rect.height) * 2 + 1);
+      ray.setFromCamera(ndc, camera);
+      const hit = ray.intersectObject(points)[0];
+      if (!hit) return null;
+      const a = points.geometry.attributes.position;
+      return [a.getX(hit.index), a.getY(hit.index), a.getZ(hit.index)];
+    }
+    function clickAt(x, y) {
+      if (!selected) return null;
+      const p = pickAt(x, y);
+      if (p) place(selected, p);
+      return p;
+    }
+    let down = null;
+    renderer.domElement.addEventListener("pointerdown", (e) => { down = [e.clientX, e.clientY]; });
+    renderer.domElement.addEventListener("pointerup", (e) => {
+      if (down && Math.hypot(e.clientX - down[0], e.clientY - down[1]) < 4 && e.button === 0) clickAt(e.clientX, e.clientY);
+      down = null;
+    });
+    function submit(token) {
+      const body = { landmarks: Array.from(placed, ([name, p]) => ({ name: name, position: p.position })) };
+      const h = { "Content-Type": "application/json" };
+      if (token) h.Authorization = "Bearer " + token;
+      return fetch("/api/captures/" + encodeURIComponent(id) + "/landmarks", {
+        method: "POST", headers: h, body: JSON.stringify(body),
+      }).then((r) => r.json().then((j) => {
+        said.textContent = r.ok ? "queued: the capture is fitted again with " + j.landmarks + " landmarks" : j.error;
+        return { status: r.status, body: j };
+      }));
+    }
+    panel.querySelector("#landmarks-submit").onclick = () => submit(panel.querySelector("#landmarks-token").value);
+    panel.querySelector("#landmarks-clear").onclick = () => { for (const n of names) unplace(n); };
+    Object.assign(state, {
+      landmarkNames: names, select: select, place: place, unplace: unplace, pickAt: pickAt, clickAt: clickAt,
+      placed: () => Array.from(placed, ([name, p]) => ({ name: name, position: p.position })),
+      submitLandmarks: submit,
+    });
+    // landmarks placed earlier for this capture are shown to start from
+    fetch("/api/captures/" + encodeURIComponent(id)).then((r) => r.json()).then((d) => {
+      for (const l of d.placed_landmarks || []) if (items.has(l.name) && !placed.has(l.name)) place(l.name, l.position);
+      panel.dataset.state = "ready";
+    }).catch(() => { panel.dataset.state = "ready"; });
+    select(names[0]);
+  }
 })();

@@ -72,7 +72,8 @@ fn check_files(cfg: &StationConfig) -> Result<(), JobError> {
 }
 
 /// Processes one capture set with the station file's pipeline and writes
-/// `out/<capture id>/` (scan, conformed mesh, report, preview) atomically.
+/// `out/<capture id>/` (scan, conformed mesh, report, preview) atomically; `landmarks`
+/// names a file of scan landmarks (`name x y z`) an operator placed, to fit by.
 ///
 /// Example: `conformd process captures/<id> --config station.toml --out results`; see
 /// `tests/pipeline.rs`.
@@ -80,17 +81,19 @@ pub fn process(
     capture: &Path,
     config: &Path,
     out: &Path,
+    landmarks: Option<&Path>,
     write: Write,
     progress: &mut (dyn FnMut(Progress) + Send),
 ) -> Result<(PathBuf, ProcessReport), JobError> {
     crate::files::refuse_inside(out, capture, "the capture set")?;
+    let landmarks = landmarks.map(crate::mesh::read_landmarks).transpose()?;
     let cfg = StationConfig::load(config)?;
     let mut pipeline = Pipeline::from_config(&cfg)?;
     let mut control = Control {
         cancel: None,
         progress: Some(progress),
     };
-    let processed = pipeline.process(capture, &mut control)?;
+    let processed = pipeline.process(capture, landmarks.as_deref(), &mut control)?;
     let dir = match write {
         Write::Publish => processed.write(out)?,
         Write::Stage => processed.stage(out)?,
@@ -123,6 +126,9 @@ pub struct ProcessOutcome {
     /// the mean distance to the scan, relative to the diagonal, and the filled share
     pub mean_distance_relative: Option<f64>,
     pub filled: Option<usize>,
+    /// the names of the operator's landmarks the fit used (comma-separated)
+    #[serde(default)]
+    pub landmarks: Option<String>,
     /// the failed stage (`read`, `reconstruct`, `conform`, `score`, `write`, or `setup`
     /// when the station file or its template could not be loaded)
     pub stage: Option<String>,
@@ -142,6 +148,12 @@ impl ProcessOutcome {
                 seconds: serde_json::to_value(&report.seconds).ok(),
                 mean_distance_relative: Some(report.conformation.mean_distance_relative),
                 filled: Some(report.conformation.filled),
+                landmarks: report.manual_landmarks.as_ref().map(|l| {
+                    l.iter()
+                        .map(|l| l.name.as_str())
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                }),
                 stage: None,
                 permanent: false,
                 error: None,
@@ -161,6 +173,7 @@ impl ProcessOutcome {
                     seconds: None,
                     mean_distance_relative: None,
                     filled: None,
+                    landmarks: None,
                     stage: Some(stage),
                     permanent,
                     error: Some(e.to_string()),

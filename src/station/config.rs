@@ -39,6 +39,11 @@ impl StationSection {
     pub fn results(&self) -> PathBuf {
         self.data.join("results")
     }
+    /// scan landmarks operators placed on the capture page, `<capture id>.txt` (beside
+    /// the results, never in the capture set)
+    pub fn landmarks(&self) -> PathBuf {
+        self.data.join("landmarks")
+    }
 }
 
 /// `[rig]`: the stereo rig that reconstructs every capture.

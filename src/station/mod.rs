@@ -6,6 +6,7 @@
 pub mod config;
 pub mod export;
 pub mod pipeline;
+pub mod placed;
 pub mod review;
 pub mod view;
 

@@ -175,7 +175,17 @@ pub struct ProcessReport {
     /// why a measurement could not be taken (the capture is still processed)
     #[serde(skip_serializing_if = "Option::is_none")]
     pub measurement_error: Option<String>,
+    /// the scan landmarks an operator placed and the fit used, when it used any
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub manual_landmarks: Option<Vec<PlacedLandmark>>,
     pub seconds: StageSeconds,
+}
+
+/// A scan landmark as the report names it.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct PlacedLandmark {
+    pub name: String,
+    pub position: [f64; 3],
 }
 
 impl std::fmt::Display for ProcessReport {
@@ -559,13 +569,19 @@ impl Pipeline {
     }
 
     /// Processes the capture set in `dir`: reads and checks it, reconstructs the scan,
-    /// conforms the template onto it (aligned automatically: station scans carry no
-    /// landmarks), scores the result against the current model and renders a preview.
+    /// conforms the template onto it (aligned automatically, or by `scan_landmarks` that
+    /// an operator placed on an earlier scan of this set, paired by name with the
+    /// template's), scores the result against the current model and renders a preview.
     /// Nothing is written; see [`Processed::write`].
     ///
     /// Example: `conformd process captures/<id> --config station.toml --out results`;
     /// see `tests/pipeline.rs`.
-    pub fn process(&mut self, dir: &Path, control: &mut Control) -> Result<Processed, StageError> {
+    pub fn process(
+        &mut self,
+        dir: &Path,
+        scan_landmarks: Option<&[Landmark]>,
+        control: &mut Control,
+    ) -> Result<Processed, StageError> {
         let t_all = Instant::now();
         let fallback_id = dir
             .file_name()
@@ -622,6 +638,32 @@ impl Pipeline {
 
         control.stage(Stage::Conform);
         let t = Instant::now();
+        let pairs = match (scan_landmarks, self.template_landmarks.as_deref()) {
+            (None, _) => None,
+            (Some(s), Some(t)) => Some((t, s)),
+            (Some(_), None) => {
+                return Err(StageError::new(
+                    Stage::Conform,
+                    &id,
+                    ConformError::Landmarks(
+                        "scan landmarks were given, but the station's template has none to pair them with ([template] landmarks)".into(),
+                    )
+                    .into(),
+                ));
+            }
+        };
+        let placed = scan_landmarks
+            .map(|l| crate::mesh::landmarks::resolve(l, &scan))
+            .transpose()
+            .map_err(|e| StageError::new(Stage::Conform, &id, ConformError::Landmarks(e).into()))?
+            .map(|l| {
+                l.into_iter()
+                    .map(|(name, p)| PlacedLandmark {
+                        name,
+                        position: [p.x, p.y, p.z],
+                    })
+                    .collect()
+            });
         let never = AtomicBool::new(false);
         let cancel = control.cancel.unwrap_or(&never);
         let conformed = {
@@ -633,7 +675,7 @@ impl Pipeline {
             conform::conform_cancellable(
                 &self.template,
                 &scan,
-                None,
+                pairs,
                 &self.conform,
                 &mut tick,
                 cancel,
@@ -682,6 +724,7 @@ impl Pipeline {
                 measurements_normalised: measured.normalised,
                 weight: measured.weight,
                 measurement_error: measured.error,
+                manual_landmarks: placed,
                 seconds,
             },
             id,

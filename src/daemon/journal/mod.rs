@@ -57,6 +57,9 @@ pub struct Job {
     /// stage timings of the last success (JSON object)
     pub seconds: Option<serde_json::Value>,
     pub result: Option<PathBuf>,
+    /// the names of the landmarks an operator placed, when the last result was fitted
+    /// with them (comma-separated); None for an automatic fit
+    pub landmarks: Option<String>,
     /// Unix seconds
     pub queued_at: f64,
     pub started_at: Option<f64>,
@@ -84,10 +87,12 @@ pub struct WorkerInfo {
 /// How a running job ended, as its worker records it.
 #[derive(Debug, Clone)]
 pub enum Finish {
-    /// done, with its (published) result folder and stage timings
+    /// done, with its (published) result folder, stage timings and the names of the
+    /// manual landmarks it was fitted with
     Done {
         result: PathBuf,
         seconds: serde_json::Value,
+        landmarks: Option<String>,
     },
     /// failed: `retry_at` Some queues it again for then, None fails it for good
     Failed {
@@ -279,6 +284,7 @@ macro_rules! job_of_row {
             result: r
                 .$get::<_, Option<String>>("result")?
                 .map(|s| resolved_path(&s, $root)),
+            landmarks: r.$get("landmarks")?,
             queued_at: r.$get("queued_at")?,
             started_at: r.$get("started_at")?,
             finished_at: r.$get("finished_at")?,

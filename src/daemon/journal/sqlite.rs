@@ -191,9 +191,9 @@ impl Backend for SqliteJournal {
             })?;
         let owner = "WHERE id = ?1 AND worker = ?2 AND state = 'running'";
         let n = match how {
-            Finish::Done { result, seconds } => tx.execute(
-                &format!("UPDATE captures SET state = 'done', result = ?3, seconds = ?4, stage = NULL, error = NULL, finished_at = ?5, worker = NULL {owner}"),
-                params![id, worker, stored_path(result, &root), seconds.to_string(), t],
+            Finish::Done { result, seconds, landmarks } => tx.execute(
+                &format!("UPDATE captures SET state = 'done', result = ?3, seconds = ?4, landmarks = ?6, stage = NULL, error = NULL, finished_at = ?5, worker = NULL {owner}"),
+                params![id, worker, stored_path(result, &root), seconds.to_string(), t, landmarks],
             ),
             Finish::Failed { stage, error, retry_at } => {
                 let (state, not_before) = Finish::failed_state(*retry_at);

@@ -54,6 +54,7 @@ fn done(result: &Path) -> Finish {
     Finish::Done {
         result: result.to_path_buf(),
         seconds: serde_json::json!({"total": 1.5}),
+        landmarks: None,
     }
 }
 
@@ -114,6 +115,18 @@ fn a_job_goes_through_its_states_once() {
         assert_eq!(job.state, State::Done);
         assert_eq!(job.seconds.unwrap()["total"], 1.5);
         assert_eq!(job.result.unwrap(), root.join("results").join(&id));
+        assert_eq!(job.landmarks, None, "an automatic fit");
+        // reprocessed with an operator's landmarks: the row names them
+        assert!(j.reprocess(&id).unwrap());
+        j.claim("w2", 30.0).unwrap().unwrap();
+        let manual = Finish::Done {
+            result: root.join("results").join(&id),
+            seconds: serde_json::json!({"total": 2.0}),
+            landmarks: Some("snout, tail_root".into()),
+        };
+        j.finish(&id, "w2", &manual, &mut || Ok(())).unwrap();
+        let job = j.get(&id).unwrap().unwrap();
+        assert_eq!(job.landmarks.as_deref(), Some("snout, tail_root"));
         assert_eq!(j.counts().unwrap().done, 1, "{which}");
         assert_eq!(j.list(Some(State::Done), 10).unwrap().len(), 1);
         // a failure for good, then the metrics' view of it
