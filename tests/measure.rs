@@ -426,6 +426,20 @@ fn weights_are_recovered_from_measurements_with_cross_validated_error_under_4_pe
     let lines: Vec<&str> = csv.lines().collect();
     assert_eq!(lines.len(), 41);
     assert!(lines[0].contains(",volume,") && lines[1].starts_with("cap-00,tag-0,crate-t,"));
+    // a result an operator rejected weighs nothing and leaves the export
+    let review = conformd::station::review::Review::new(
+        conformd::station::review::Verdict::Rejected,
+        Some("two animals in the crate".into()),
+        0.0,
+    )
+    .unwrap();
+    conformd::station::review::write(&results.join("cap-03"), &review).unwrap();
+    let j = conformd::jobs::model_weigh(&wpath, &results, None, &out).unwrap();
+    assert_eq!(j.samples, 39);
+    let export = conformd::jobs::export_csv(&results).unwrap();
+    assert_eq!(export.csv.lines().count(), 40);
+    assert!(!export.csv.contains("\ncap-03,"));
+    assert_eq!(export.rejected.len(), 1);
     // a damaged regression file is refused, naming it
     let bad = dir.path().join("bad.json");
     std::fs::write(
