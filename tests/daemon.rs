@@ -12,6 +12,10 @@ use std::time::{Duration, Instant};
 
 const BIN: &str = env!("CARGO_BIN_EXE_conformd");
 
+#[path = "support/webdriver.rs"]
+mod webdriver;
+use webdriver::Browser;
+
 /// A two-pod rig at 640x480 (the example rig's geometry at half the resolution): the
 /// same code path at a quarter of the pixels.
 fn small_rig(dir: &Path) -> PathBuf {
@@ -1209,112 +1213,6 @@ fn reviews_are_checked_and_a_rejected_result_leaves_the_export_and_the_model() {
     assert_eq!(csv.lines().count(), 5, "{csv}");
 }
 
-/// A WebDriver session on Debian's chromedriver driving headless Chromium; the driver
-/// listens on 127.0.0.1 only and is killed with its guard.
-struct Browser {
-    driver: Child,
-    url: String,
-    session: String,
-}
-
-impl Browser {
-    fn start(profile: &Path) -> Browser {
-        let port = free_port();
-        let driver = Command::new("chromedriver")
-            .arg(format!("--port={port}"))
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("chromedriver is needed for the landmark test: `make test` installs Debian's chromium-driver package");
-        let url = format!("http://127.0.0.1:{port}");
-        let t = Instant::now();
-        while request("GET", &format!("{url}/status"), None, None).0 != 200 {
-            assert!(
-                t.elapsed() < Duration::from_secs(30),
-                "chromedriver did not answer"
-            );
-            std::thread::sleep(Duration::from_millis(100));
-        }
-        let caps = serde_json::json!({"capabilities": {"alwaysMatch": {
-            "browserName": "chrome",
-            "goog:chromeOptions": {"args": [
-                "--headless=new", "--no-sandbox", "--disable-gpu", "--no-first-run",
-                "--disable-background-networking", "--disable-component-update",
-                "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
-                "--window-size=1400,1000",
-                format!("--user-data-dir={}", profile.display()),
-            ]}
-        }}});
-        let mut b = Browser {
-            driver,
-            url,
-            session: String::new(),
-        };
-        let v = b.call("session", caps);
-        b.session = v["sessionId"].as_str().expect("a session").to_string();
-        b
-    }
-
-    fn call(&self, path: &str, body: serde_json::Value) -> serde_json::Value {
-        let (code, text) = request(
-            "POST",
-            &format!("{}/{path}", self.url),
-            Some(body.to_string().as_bytes()),
-            None,
-        );
-        let v: serde_json::Value = serde_json::from_str(&text).unwrap_or_default();
-        assert_eq!(code, 200, "WebDriver {path}: {text}");
-        v["value"].clone()
-    }
-
-    fn go(&self, url: &str) {
-        self.call(
-            &format!("session/{}/url", self.session),
-            serde_json::json!({ "url": url }),
-        );
-    }
-
-    /// Runs `script` in the page (its arguments `args`); returns what it returns.
-    fn run(&self, script: &str, args: serde_json::Value) -> serde_json::Value {
-        self.call(
-            &format!("session/{}/execute/sync", self.session),
-            serde_json::json!({ "script": script, "args": args }),
-        )
-    }
-
-    /// Runs `script`, which calls its last argument with the answer when done.
-    fn run_async(&self, script: &str, args: serde_json::Value) -> serde_json::Value {
-        self.call(
-            &format!("session/{}/execute/async", self.session),
-            serde_json::json!({ "script": script, "args": args }),
-        )
-    }
-
-    fn wait_for(&self, script: &str, what: &str) {
-        let t = Instant::now();
-        while self.run(script, serde_json::json!([])) != serde_json::json!(true) {
-            assert!(t.elapsed() < Duration::from_secs(60), "waited for {what}");
-            std::thread::sleep(Duration::from_millis(200));
-        }
-    }
-}
-
-impl Drop for Browser {
-    fn drop(&mut self) {
-        if !self.session.is_empty() {
-            let agent: ureq::Agent = ureq::Agent::config_builder()
-                .http_status_as_error(false)
-                .build()
-                .into();
-            let _ = agent
-                .delete(&format!("{}/session/{}", self.url, self.session))
-                .call();
-        }
-        let _ = self.driver.kill();
-        let _ = self.driver.wait();
-    }
-}
-
 #[test]
 fn landmarks_placed_on_the_page_refit_the_capture_by_them() {
     let dir = tempfile::tempdir().unwrap();
@@ -1439,11 +1337,12 @@ fn landmarks_placed_on_the_page_refit_the_capture_by_them() {
 
     // placed through the page's own calls: one by a click on the scan in the view, then
     // every landmark where it belongs, sent with the page's button call
-    let browser = Browser::start(&d.join("chrome-lm"));
+    let browser = Browser::start(&d.join("chrome-lm"), 1400, 1000);
     browser.go(&daemon.url("/captures/lm-1"));
     browser.wait_for(
         "const p = document.getElementById('landmarks-panel'); return !!p && p.dataset.state === 'ready';",
         "the landmark panel",
+        Duration::from_secs(60),
     );
     let names = browser.run(
         "return window.conformdViewer.landmarkNames;",
