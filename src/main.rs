@@ -79,28 +79,15 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
             } else {
                 jobs::Write::Publish
             };
+            let landmarks = landmarks.as_deref();
             if json {
-                let r = jobs::process(
-                    &capture,
-                    &config,
-                    &out,
-                    landmarks.as_deref(),
-                    write,
-                    &mut |_| {},
-                );
+                let r = jobs::process(&capture, &config, &out, landmarks, write, &mut |_| {});
                 let line = serde_json::to_string(&jobs::ProcessOutcome::of(&r, write));
                 println!("{}", line.expect("an outcome serialises"));
                 r?;
             } else {
                 let (pb, mut tick) = progress::pipeline(30);
-                let r = jobs::process(
-                    &capture,
-                    &config,
-                    &out,
-                    landmarks.as_deref(),
-                    write,
-                    &mut tick,
-                );
+                let r = jobs::process(&capture, &config, &out, landmarks, write, &mut tick);
                 pb.finish_and_clear();
                 let (dir, report) = r?;
                 println!("{report}\nwrote {}", dir.display());

@@ -455,6 +455,23 @@ async fn trigger(Ctx(shared): Ctx<Arc<Shared>>, body: axum::body::Bytes) -> Api<
     }
 }
 
+/// A request body as `T`, or a 400 saying what was `expected` and what was wrong.
+fn json_body<T: serde::de::DeserializeOwned>(body: &[u8], expected: &str) -> Api<T> {
+    serde_json::from_slice(body)
+        .map_err(|e| ApiError(StatusCode::BAD_REQUEST, format!("expected {expected}: {e}")))
+}
+
+/// The result folder of a finished `job`, or a 409 saying `why` one is needed.
+fn finished_result(job: Job, why: &str) -> Api<std::path::PathBuf> {
+    match (job.state, job.result) {
+        (State::Done, Some(dir)) => Ok(dir),
+        (state, _) => Err(ApiError(
+            StatusCode::CONFLICT,
+            format!("capture '{}' is {}: {why}", job.id, state.as_str()),
+        )),
+    }
+}
+
 #[derive(serde::Deserialize)]
 #[serde(deny_unknown_fields)]
 struct ReviewBody {
@@ -471,28 +488,13 @@ async fn review(
     body: axum::body::Bytes,
 ) -> Api<Response> {
     let job = job_or_404(&shared, &id)?;
-    let req: ReviewBody = serde_json::from_slice(&body).map_err(|e| {
-        ApiError(
-            StatusCode::BAD_REQUEST,
-            format!(
-                "expected {{\"verdict\": \"accepted\"}} or {{\"verdict\": \"rejected\", \"reason\": \"...\"}}: {e}"
-            ),
-        )
-    })?;
+    let req: ReviewBody = json_body(
+        &body,
+        r#"{"verdict": "accepted"} or {"verdict": "rejected", "reason": "..."}"#,
+    )?;
     let review = Review::new(req.verdict, req.reason, super::journal::now())
         .map_err(|e| ApiError(StatusCode::BAD_REQUEST, e))?;
-    let dir = match (job.state, job.result) {
-        (State::Done, Some(dir)) => dir,
-        (state, _) => {
-            return Err(ApiError(
-                StatusCode::CONFLICT,
-                format!(
-                    "capture '{id}' is {}: only a finished result can be reviewed",
-                    state.as_str()
-                ),
-            ));
-        }
-    };
+    let dir = finished_result(job, "only a finished result can be reviewed")?;
     let written = review.clone();
     tokio::task::spawn_blocking(move || crate::station::review::write(&dir, &written))
         .await
@@ -534,26 +536,11 @@ async fn place_landmarks(
     body: axum::body::Bytes,
 ) -> Api<Response> {
     let job = job_or_404(&shared, &id)?;
-    let req: LandmarksBody = serde_json::from_slice(&body).map_err(|e| {
-        ApiError(
-            StatusCode::BAD_REQUEST,
-            format!(
-                "expected {{\"landmarks\": [{{\"name\": \"...\", \"position\": [x, y, z]}}, ...]}}: {e}"
-            ),
-        )
-    })?;
-    let dir = match (job.state, job.result) {
-        (State::Done, Some(dir)) => dir,
-        (state, _) => {
-            return Err(ApiError(
-                StatusCode::CONFLICT,
-                format!(
-                    "capture '{id}' is {}: landmarks are placed on a finished result's scan",
-                    state.as_str()
-                ),
-            ));
-        }
-    };
+    let req: LandmarksBody = json_body(
+        &body,
+        r#"{"landmarks": [{"name": "...", "position": [x, y, z]}, ...]}"#,
+    )?;
+    let dir = finished_result(job, "landmarks are placed on a finished result's scan")?;
     let (folder, cid) = (shared.cfg.station.landmarks(), id.clone());
     let checked = tokio::task::spawn_blocking(move || -> Result<usize, ApiError> {
         let conflict = |e: String| ApiError(StatusCode::CONFLICT, e);
