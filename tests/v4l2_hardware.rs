@@ -3,7 +3,7 @@
 //! `make test`'s closing line; `make test-hardware` runs it on a station. What runs
 //! everywhere is the listing's check against `/dev`.
 
-use conformd::rig::camera::{Camera, CameraInfo, CameraSettings};
+use conformd::rig::camera::{Camera, CameraInfo, CameraSettings, monotonic_now};
 use conformd::rig::v4l2::{V4l2Camera, list_devices};
 use std::time::{Duration, Instant};
 
@@ -44,33 +44,57 @@ fn a_real_camera() {
     let d = listed
         .first()
         .expect("a /dev/video* device that can be queried as a capture device");
+    // a size the device offers in a format the station reads
+    let dev = v4l::Device::with_path(&d.path).expect("the device opens");
+    let (format, (width, height)) = V4l2Camera::offered(&dev)
+        .expect("the device lists its formats")
+        .into_iter()
+        .find_map(|(f, sizes)| sizes.first().map(|s| (f, *s)))
+        .unwrap_or_else(|| panic!("{} offers no MJPG, YUYV or GREY size", d.path.display()));
+    drop(dev);
     let info = CameraInfo {
         id: "hw".into(),
         pod: "p".into(),
         side: "left".into(),
     };
     let mut cam = V4l2Camera::open(info, d.path.to_str().unwrap()).expect("opens");
-    let offered = format!("{:?}", d.formats);
     let settings = CameraSettings {
-        width: 640,
-        height: 480,
+        format,
+        width,
+        height,
         ..Default::default()
     };
-    match cam.configure(&settings) {
-        Ok(()) => {
-            cam.arm().expect("arms");
-            let deadline = Instant::now() + Duration::from_secs(2);
-            let r = cam.grab(deadline);
-            assert!(
-                Instant::now() < deadline + Duration::from_millis(500),
-                "grab kept its deadline"
-            );
-            eprintln!(
-                "grab from {}: {:?}",
-                d.path.display(),
-                r.map(|f| (f.width, f.height, f.sequence))
-            );
-        }
-        Err(e) => eprintln!("{} cannot give 640x480 ({offered}): {e}", d.path.display()),
+    cam.configure(&settings).expect("configures");
+    // twice: every arming starts a fresh stream, counted from 0
+    for round in 0..2 {
+        cam.arm().expect("arms");
+        // a free-running camera: the software trigger's moment, taken after arming
+        let fired_at = monotonic_now();
+        let deadline = Instant::now() + Duration::from_secs(2);
+        let f = cam.grab(fired_at, deadline).expect("a frame within 2 s");
+        assert!(
+            Instant::now() < deadline + Duration::from_millis(500),
+            "grab kept its deadline"
+        );
+        assert_eq!((f.width, f.height), (width, height), "round {round}");
+        assert_eq!(
+            f.sequence, 0,
+            "round {round}: the first frame of the stream"
+        );
+        assert!(
+            f.sensor_time >= fired_at,
+            "round {round}: the frame ({:?}) was exposed before the trigger ({fired_at:?})",
+            f.sensor_time
+        );
+        assert!(
+            f.sensor_time < fired_at + Duration::from_secs(2),
+            "round {round}: the frame's timestamp is on another clock"
+        );
+        eprintln!(
+            "round {round}: {} {format:?} {width}x{height}, sequence 0, {:.1} ms after the trigger",
+            d.path.display(),
+            (f.sensor_time - fired_at).as_secs_f64() * 1e3
+        );
+        cam.close();
     }
 }

@@ -126,8 +126,13 @@ impl Frame {
 
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum CameraError {
-    #[error("camera {camera}: no frame within {waited_ms} ms")]
-    Timeout { camera: String, waited_ms: u64 },
+    #[error("camera {camera}: no frame within {waited_ms} ms{}", stale_note(*stale))]
+    Timeout {
+        camera: String,
+        waited_ms: u64,
+        /// frames exposed before the trigger that came and were dropped
+        stale: u32,
+    },
     #[error("camera {camera}: frame {expected} was lost (the next one was {got})")]
     LostFrame {
         camera: String,
@@ -140,18 +145,38 @@ pub enum CameraError {
     Settings { camera: String, msg: String },
 }
 
+fn stale_note(stale: u32) -> String {
+    match stale {
+        0 => String::new(),
+        n => format!(" after the trigger ({n} from before it dropped)"),
+    }
+}
+
 /// A camera of the rig.
 pub trait Camera: Send {
     fn info(&self) -> &CameraInfo;
     /// Applies pixel format, size, exposure, gain and trigger mode.
     fn configure(&mut self, settings: &CameraSettings) -> Result<(), CameraError>;
-    /// Gets ready for the next frame (streaming started, stale frames dropped).
+    /// Gets ready for the trigger: streaming started, frames already waiting dropped, so
+    /// the next frame is one the trigger made.
     fn arm(&mut self) -> Result<(), CameraError>;
-    /// Returns the next frame, or an error once `deadline` has passed; never blocks
-    /// beyond it (an unplugged camera must not hang the station).
-    fn grab(&mut self, deadline: Instant) -> Result<Frame, CameraError>;
+    /// Returns the first frame exposed at or after `fired_at` (the trigger's moment on
+    /// [`monotonic_now`]'s clock), or an error once `deadline` has passed; never blocks
+    /// beyond it (an unplugged camera must not hang the station). A frame from before
+    /// the trigger is never returned.
+    fn grab(&mut self, fired_at: Duration, deadline: Instant) -> Result<Frame, CameraError>;
     /// Stops streaming; the camera can be armed again.
     fn close(&mut self);
+}
+
+/// Now on CLOCK_MONOTONIC, the clock V4L2 drivers stamp frames with, so a trigger's
+/// moment and a frame's timestamp compare.
+pub fn monotonic_now() -> Duration {
+    let t = rustix::time::clock_gettime(rustix::time::ClockId::Monotonic);
+    Duration::new(
+        t.tv_sec.max(0) as u64,
+        t.tv_nsec.clamp(0, 999_999_999) as u32,
+    )
 }
 
 /// Reads an image file into frame pixels: JPEG kept as is, anything else decoded to

@@ -260,11 +260,13 @@ impl Session {
             c.arm()?;
         }
         self.trigger.arm(seq)?;
+        // taken before the pulse: a frame stamped earlier was exposed before it
+        let fired_at = super::camera::monotonic_now();
         let box_time = self.trigger.fire(seq, self.options.exposure_us)?;
         let deadline = Instant::now() + Duration::from_millis(self.options.window_ms);
         let mut frames = Vec::with_capacity(self.cameras.len());
         for c in &mut self.cameras {
-            frames.push(c.grab(deadline)?);
+            frames.push(c.grab(fired_at, deadline)?);
         }
         Ok((frames, box_time))
     }

@@ -22,12 +22,6 @@ pub enum Fault {
     Device(String),
 }
 
-/// The replay cameras' common clock (like CLOCK_MONOTONIC for V4L2 timestamps).
-fn clock_origin() -> Instant {
-    static ORIGIN: std::sync::OnceLock<Instant> = std::sync::OnceLock::new();
-    *ORIGIN.get_or_init(Instant::now)
-}
-
 /// Frames served in turn, looping.
 pub struct ReplayCamera {
     info: CameraInfo,
@@ -35,9 +29,6 @@ pub struct ReplayCamera {
     next: usize,
     sequence: u32,
     armed: bool,
-    /// when the camera was last armed: a triggered frame is exposed then, on every
-    /// camera of the rig alike
-    armed_at: Instant,
     pub latency: Duration,
     /// faults by grab number (0-based, counting every grab)
     pub faults: BTreeMap<usize, Fault>,
@@ -53,7 +44,6 @@ impl ReplayCamera {
             next: 0,
             sequence: 0,
             armed: false,
-            armed_at: Instant::now(),
             latency: Duration::ZERO,
             faults: BTreeMap::new(),
             grabs: 0,
@@ -130,11 +120,10 @@ impl Camera for ReplayCamera {
             });
         }
         self.armed = true;
-        self.armed_at = Instant::now();
         Ok(())
     }
 
-    fn grab(&mut self, deadline: Instant) -> Result<Frame, CameraError> {
+    fn grab(&mut self, fired_at: Duration, deadline: Instant) -> Result<Frame, CameraError> {
         let n = self.grabs;
         self.grabs += 1;
         if !self.armed {
@@ -151,6 +140,7 @@ impl Camera for ReplayCamera {
             return Err(CameraError::Timeout {
                 camera: self.info.id.clone(),
                 waited_ms: deadline.saturating_duration_since(start).as_millis() as u64,
+                stale: 0,
             });
         }
         std::thread::sleep(ready.saturating_duration_since(Instant::now()));
@@ -186,7 +176,8 @@ impl Camera for ReplayCamera {
             width: w,
             height: h,
             data,
-            sensor_time: self.armed_at.duration_since(clock_origin()) + skew,
+            // exposed at the trigger, on every camera of the rig alike
+            sensor_time: fired_at + skew,
             sequence: expected,
             exposure_us: self.exposure_us,
         })

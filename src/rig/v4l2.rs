@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 use v4l::buffer::Type;
 use v4l::io::mmap::Stream as MmapStream;
-use v4l::io::traits::CaptureStream;
+use v4l::io::traits::{CaptureStream, Stream as StreamControl};
 use v4l::video::Capture;
 use v4l::{Device, FourCC};
 
@@ -160,13 +160,17 @@ pub fn resolve(name: &str) -> PathBuf {
     }
 }
 
-/// What the camera needs of a device's capture queue: a stream started afresh at arming
-/// (its sequence numbers counting from 0, as V4L2 drivers do at STREAMON) and its next
-/// filled buffer within a time limit. The real one is the `v4l` crate's mmap stream; the
-/// unit tests feed the camera's own logic from a queue of chosen buffers.
+/// What the camera needs of a device's capture queue, as a V4L2 driver behaves: `start`
+/// requests the buffers, queues them and turns streaming on (VIDIOC_STREAMON), so a
+/// trigger pulse after it fills a buffer and one before it is lost; sequence numbers count
+/// from 0 at `start`; `next` dequeues the next filled buffer within a time limit; `stop`
+/// turns streaming off and frees the buffers. The real one is the `v4l` crate's mmap
+/// stream; `synth::v4l2_driver` simulates a driver (triggered or free-running) for tests.
 pub trait CaptureQueue: Send {
+    /// Streaming is on when this returns.
     fn start(&mut self) -> std::io::Result<()>;
-    /// the next buffer's bytes in use and its driver metadata
+    /// the next buffer's bytes in use and its driver metadata; `TimedOut` when none
+    /// was filled within `timeout` (zero: only one already waiting)
     fn next(&mut self, timeout: Duration) -> std::io::Result<(Vec<u8>, BufferMeta)>;
     fn stop(&mut self);
 }
@@ -177,9 +181,20 @@ pub struct BufferMeta {
     pub sequence: u32,
     pub sec: i64,
     pub usec: i64,
+    /// the timestamp is CLOCK_MONOTONIC's (V4L2_BUF_FLAG_TIMESTAMP_MONOTONIC), so it
+    /// compares with the trigger's moment
+    pub monotonic: bool,
 }
 
-/// A device's mmap buffers (4 of them), made at each start.
+/// Buffers asked of the driver at each start.
+const BUFFERS: u32 = 5;
+/// `POLLIN` of poll(2)
+const POLLIN: i16 = 0x001;
+/// V4L2_BUF_FLAG_TIMESTAMP_MASK and _MONOTONIC
+const TIMESTAMP_MASK: u32 = 0xe000;
+const TIMESTAMP_MONOTONIC: u32 = 0x2000;
+
+/// A device's mmap buffers, made and streamed at each start.
 struct MmapQueue {
     dev: std::sync::Arc<Device>,
     stream: Option<MmapStream<'static>>,
@@ -187,8 +202,17 @@ struct MmapQueue {
 
 impl CaptureQueue for MmapQueue {
     fn start(&mut self) -> std::io::Result<()> {
-        self.stream = None;
-        self.stream = Some(MmapStream::with_buffers(&self.dev, Type::VideoCapture, 4)?);
+        self.stop();
+        let mut stream = MmapStream::with_buffers(&self.dev, Type::VideoCapture, BUFFERS)?;
+        // The crate's `next` queues the buffer it handed out last before dequeuing, and
+        // takes buffer 0 for that one once streaming is on: buffer 0 waits outside the
+        // queue until the first frame is taken, every other one is queued now.
+        for index in 1..BUFFERS as usize {
+            CaptureStream::queue(&mut stream, index)?;
+        }
+        // VIDIOC_STREAMON: from here a trigger pulse fills a buffer
+        StreamControl::start(&mut stream)?;
+        self.stream = Some(stream);
         Ok(())
     }
 
@@ -197,20 +221,34 @@ impl CaptureQueue for MmapQueue {
             .stream
             .as_mut()
             .ok_or_else(|| std::io::Error::other("grab before arm"))?;
-        stream.set_timeout(timeout);
-        let (buf, meta) = stream.next()?;
-        let used = (meta.bytesused as usize).min(buf.len());
-        Ok((
-            buf[..used].to_vec(),
-            BufferMeta {
-                sequence: meta.sequence,
-                sec: meta.timestamp.sec,
-                usec: meta.timestamp.usec,
-            },
-        ))
+        // Wait here, not inside the crate's `next`: a time-out there leaves the buffer it
+        // queued counted as handed out, and the next call would queue it twice.
+        let ms = timeout.as_millis().min(i32::MAX as u128) as i32;
+        if stream.handle().poll(POLLIN, ms)? == 0 {
+            return Err(std::io::ErrorKind::TimedOut.into());
+        }
+        stream.set_timeout(timeout.max(Duration::from_millis(1)));
+        let taken = stream.next().map(|(buf, meta)| {
+            let used = (meta.bytesused as usize).min(buf.len());
+            (
+                buf[..used].to_vec(),
+                BufferMeta {
+                    sequence: meta.sequence,
+                    sec: meta.timestamp.sec,
+                    usec: meta.timestamp.usec,
+                    monotonic: meta.flags.bits() & TIMESTAMP_MASK == TIMESTAMP_MONOTONIC,
+                },
+            )
+        });
+        if taken.is_err() {
+            // the queue's state is unknown after a failed dequeue: arming starts afresh
+            self.stop();
+        }
+        taken
     }
 
     fn stop(&mut self) {
+        // dropping the stream turns streaming off (VIDIOC_STREAMOFF) and unmaps
         self.stream = None;
     }
 }
@@ -219,37 +257,61 @@ impl CaptureQueue for MmapQueue {
 pub struct V4l2Camera {
     info: CameraInfo,
     path: PathBuf,
-    /// shared with the capture queue, which streams from it
-    dev: std::sync::Arc<Device>,
+    /// shared with the capture queue, which streams from it; none for a camera over a
+    /// simulated driver, whose format is fixed
+    dev: Option<std::sync::Arc<Device>>,
     frames: FrameStream,
 }
 
-/// The part of a camera that turns dequeued buffers into frames: decoding, the driver's
-/// timestamp, and the sequence check (a frame lost since arming, or between two grabs of
-/// one arming, is an error, not a silently later frame).
+/// Frames the queue may hold at arming, dropped then (more means a camera faster than
+/// the station can drain: the rest are dropped by the trigger time check).
+const DRAIN_AT_MOST: u32 = 4 * BUFFERS;
+
+/// The part of a camera that turns dequeued buffers into frames: streaming started at
+/// arming, frames from before the trigger dropped (by the driver's timestamp), decoding,
+/// and the sequence check (a frame lost since arming, or between two grabs of one arming,
+/// is an error, not a silently later frame).
 struct FrameStream {
     camera: String,
     queue: Box<dyn CaptureQueue>,
     armed: bool,
     format: (PixelFormat, u32, u32),
     exposure_us: Option<u32>,
-    /// the sequence number the next frame must carry
-    expected: u32,
+    /// the sequence number the next frame must carry; none after frames from before the
+    /// trigger were dropped (a frame lost then was nobody's)
+    expected: Option<u32>,
+    /// frames from before the trigger dropped since arming
+    stale: u32,
 }
 
 impl FrameStream {
     fn arm(&mut self) -> std::io::Result<()> {
-        // a fresh stream: no stale frame from before the trigger is taken
         self.armed = false;
         self.queue.start()?;
+        self.expected = Some(0);
+        self.stale = 0;
+        // anything a free-running camera filled since STREAMON is from before the trigger
+        while self.stale < DRAIN_AT_MOST {
+            match self.queue.next(Duration::ZERO) {
+                Ok(_) => {
+                    self.stale += 1;
+                    self.expected = None;
+                }
+                Err(e) if e.kind() == std::io::ErrorKind::TimedOut => break,
+                Err(e) => return Err(e),
+            }
+        }
         self.armed = true;
-        self.expected = 0;
         Ok(())
     }
 
-    fn grab(&mut self, deadline: Instant, path: &Path) -> Result<Frame, CameraError> {
+    fn grab(
+        &mut self,
+        fired_at: Duration,
+        deadline: Instant,
+        path: &Path,
+    ) -> Result<Frame, CameraError> {
         let start = Instant::now();
-        let left = deadline.saturating_duration_since(start);
         let (f, w, h) = self.format;
         let camera = self.camera.clone();
         let device = |msg: String| CameraError::Device {
@@ -259,36 +321,62 @@ impl FrameStream {
         if !self.armed {
             return Err(device("grab before arm".into()));
         }
-        let (bytes, meta) = match self.queue.next(left.max(Duration::from_millis(1))) {
-            Ok(x) => x,
-            Err(e) if e.kind() == std::io::ErrorKind::TimedOut => {
-                return Err(CameraError::Timeout {
+        // drivers stamp in whole microseconds: a frame of the trigger's own microsecond is its
+        let fired_at = Duration::from_micros(fired_at.as_micros() as u64);
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            let (bytes, meta) = match self.queue.next(left.max(Duration::from_millis(1))) {
+                Ok(x) => x,
+                Err(e) if e.kind() == std::io::ErrorKind::TimedOut => {
+                    return Err(CameraError::Timeout {
+                        camera,
+                        waited_ms: start.elapsed().as_millis() as u64,
+                        stale: self.stale,
+                    });
+                }
+                Err(e) => return Err(device(e.to_string())),
+            };
+            if !meta.monotonic {
+                return Err(device(
+                    "the driver's frame timestamps are not CLOCK_MONOTONIC's, so a frame cannot be told from one taken before the trigger".into(),
+                ));
+            }
+            let sensor_time = timestamp(meta.sec, meta.usec);
+            let sequence = meta.sequence;
+            if sensor_time < fired_at {
+                self.stale += 1;
+                self.expected = None;
+                if Instant::now() >= deadline {
+                    return Err(CameraError::Timeout {
+                        camera,
+                        waited_ms: start.elapsed().as_millis() as u64,
+                        stale: self.stale,
+                    });
+                }
+                continue;
+            }
+            let expected = self.expected;
+            self.expected = Some(sequence.wrapping_add(1));
+            if let Some(expected) = expected
+                && sequence != expected
+            {
+                return Err(CameraError::LostFrame {
                     camera,
-                    waited_ms: start.elapsed().as_millis() as u64,
+                    expected,
+                    got: sequence,
                 });
             }
-            Err(e) => return Err(device(e.to_string())),
-        };
-        let sequence = meta.sequence;
-        let expected = self.expected;
-        self.expected = sequence.wrapping_add(1);
-        if sequence != expected {
-            return Err(CameraError::LostFrame {
+            let data = decode(f, &bytes, w, h).map_err(device)?;
+            return Ok(Frame {
                 camera,
-                expected,
-                got: sequence,
+                width: w,
+                height: h,
+                data,
+                sensor_time,
+                sequence,
+                exposure_us: self.exposure_us,
             });
         }
-        let data = decode(f, &bytes, w, h).map_err(device)?;
-        Ok(Frame {
-            camera,
-            width: w,
-            height: h,
-            data,
-            sensor_time: timestamp(meta.sec, meta.usec),
-            sequence,
-            exposure_us: self.exposure_us,
-        })
     }
 }
 
@@ -308,19 +396,36 @@ impl V4l2Camera {
             dev: dev.clone(),
             stream: None,
         };
-        Ok(V4l2Camera {
+        let mut camera =
+            V4l2Camera::with_queue(info, path, Box::new(queue), PixelFormat::Mjpg, 0, 0);
+        camera.dev = Some(dev);
+        Ok(camera)
+    }
+
+    /// A camera over another capture queue (a simulated driver in the tests) whose
+    /// frames are `format` at `width` x `height`; `path` names it in errors.
+    pub fn with_queue(
+        info: CameraInfo,
+        path: PathBuf,
+        queue: Box<dyn CaptureQueue>,
+        format: PixelFormat,
+        width: u32,
+        height: u32,
+    ) -> Self {
+        V4l2Camera {
             frames: FrameStream {
                 camera: info.id.clone(),
-                queue: Box::new(queue),
+                queue,
                 armed: false,
-                format: (PixelFormat::Mjpg, 0, 0),
+                format: (format, width, height),
                 exposure_us: None,
-                expected: 0,
+                expected: Some(0),
+                stale: 0,
             },
             info,
             path,
-            dev,
-        })
+            dev: None,
+        }
     }
 
     fn err(&self, msg: impl std::fmt::Display) -> CameraError {
@@ -358,16 +463,31 @@ impl Camera for V4l2Camera {
     }
 
     fn configure(&mut self, s: &CameraSettings) -> Result<(), CameraError> {
-        let offered = Self::offered(&self.dev).map_err(|e| self.err(e))?;
+        let Some(dev) = self.dev.clone() else {
+            // a queue of fixed format: the settings must ask for it
+            let (f, w, h) = self.frames.format;
+            if (s.width, s.height) != (w, h) {
+                return Err(CameraError::Settings {
+                    camera: self.info.id.clone(),
+                    msg: format!(
+                        "{}x{} was asked for; the queue gives {f:?} {w}x{h}",
+                        s.width, s.height
+                    ),
+                });
+            }
+            self.frames.exposure_us = s.exposure_us;
+            return Ok(());
+        };
+        let offered = Self::offered(&dev).map_err(|e| self.err(e))?;
         let (f, w, h) = choose_format(&offered, s).map_err(|m| CameraError::Settings {
             camera: self.info.id.clone(),
             msg: m,
         })?;
-        let mut fmt = self.dev.format().map_err(|e| self.err(e))?;
+        let mut fmt = dev.format().map_err(|e| self.err(e))?;
         fmt.width = w;
         fmt.height = h;
         fmt.fourcc = FourCC::new(&f.fourcc());
-        let got = self.dev.set_format(&fmt).map_err(|e| self.err(e))?;
+        let got = dev.set_format(&fmt).map_err(|e| self.err(e))?;
         if (got.width, got.height) != (w, h) || got.fourcc.repr != f.fourcc() {
             return Err(CameraError::Settings {
                 camera: self.info.id.clone(),
@@ -379,7 +499,7 @@ impl Camera for V4l2Camera {
         }
         for (id, value) in control_writes(s) {
             // cameras without a control (no gain, fixed exposure) are not an error
-            let _ = self.dev.set_control(v4l::Control {
+            let _ = dev.set_control(v4l::Control {
                 id,
                 value: v4l::control::Value::Integer(value),
             });
@@ -393,8 +513,8 @@ impl Camera for V4l2Camera {
         self.frames.arm().map_err(|e| self.err(e))
     }
 
-    fn grab(&mut self, deadline: Instant) -> Result<Frame, CameraError> {
-        self.frames.grab(deadline, &self.path)
+    fn grab(&mut self, fired_at: Duration, deadline: Instant) -> Result<Frame, CameraError> {
+        self.frames.grab(fired_at, deadline, &self.path)
     }
 
     fn close(&mut self) {
@@ -566,50 +686,84 @@ mod tests {
         assert_eq!(timestamp(-1, 0), Duration::ZERO);
     }
 
-    /// The device layer faked: buffers with chosen sequence numbers, timeouts, errors.
+    /// The device layer faked: buffers with chosen sequence numbers and times, timeouts,
+    /// errors. Buffers before a `None` are what the queue holds when it starts (a
+    /// free-running camera's frames since STREAMON); the rest come one per `next`.
     struct FakeQueue {
+        at_start: usize,
         buffers: std::collections::VecDeque<std::io::Result<(Vec<u8>, BufferMeta)>>,
-        starts: std::sync::Arc<std::sync::atomic::AtomicUsize>,
+        streaming: bool,
     }
 
     impl CaptureQueue for FakeQueue {
         fn start(&mut self) -> std::io::Result<()> {
-            self.starts
-                .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            self.streaming = true;
             Ok(())
         }
-        fn next(&mut self, _: Duration) -> std::io::Result<(Vec<u8>, BufferMeta)> {
+        fn next(&mut self, timeout: Duration) -> std::io::Result<(Vec<u8>, BufferMeta)> {
+            if !self.streaming {
+                return Err(std::io::ErrorKind::TimedOut.into());
+            }
+            if timeout.is_zero() {
+                // only what was already waiting
+                if self.at_start == 0 {
+                    return Err(std::io::ErrorKind::TimedOut.into());
+                }
+                self.at_start -= 1;
+            } else {
+                self.at_start = self.at_start.saturating_sub(1);
+            }
             self.buffers
                 .pop_front()
                 .unwrap_or_else(|| Err(std::io::ErrorKind::TimedOut.into()))
         }
-        fn stop(&mut self) {}
+        fn stop(&mut self) {
+            self.streaming = false;
+        }
     }
 
-    fn grey(sequence: u32) -> std::io::Result<(Vec<u8>, BufferMeta)> {
+    /// A 2x2 grey frame exposed at `at` seconds.
+    fn grey_at(sequence: u32, at: f64) -> std::io::Result<(Vec<u8>, BufferMeta)> {
         Ok((
             vec![7; 4],
             BufferMeta {
                 sequence,
-                sec: 100,
-                usec: 500_000,
+                sec: at.trunc() as i64,
+                usec: (at.fract() * 1e6).round() as i64,
+                monotonic: true,
             },
         ))
     }
 
-    fn stream(buffers: Vec<std::io::Result<(Vec<u8>, BufferMeta)>>) -> FrameStream {
+    fn grey(sequence: u32) -> std::io::Result<(Vec<u8>, BufferMeta)> {
+        grey_at(sequence, 100.5)
+    }
+
+    fn stream_holding(
+        at_start: usize,
+        buffers: Vec<std::io::Result<(Vec<u8>, BufferMeta)>>,
+    ) -> FrameStream {
         FrameStream {
             camera: "cam0".into(),
             queue: Box::new(FakeQueue {
+                at_start,
                 buffers: buffers.into(),
-                starts: Default::default(),
+                streaming: false,
             }),
             armed: false,
             format: (PixelFormat::Grey, 2, 2),
             exposure_us: Some(800),
-            expected: 0,
+            expected: Some(0),
+            stale: 0,
         }
     }
+
+    fn stream(buffers: Vec<std::io::Result<(Vec<u8>, BufferMeta)>>) -> FrameStream {
+        stream_holding(0, buffers)
+    }
+
+    /// The trigger's moment in these tests: 100 s on the monotonic clock.
+    const FIRED: Duration = Duration::from_secs(100);
 
     #[test]
     fn a_frame_lost_on_the_device_is_an_error() {
@@ -618,17 +772,18 @@ mod tests {
         // one arming, several grabs: 0 and 1 arrive, 2 is lost
         let mut s = stream(vec![grey(0), grey(1), grey(3), grey(4)]);
         assert!(
-            s.grab(soon(), path)
+            s.grab(FIRED, soon(), path)
                 .unwrap_err()
                 .to_string()
                 .contains("grab before arm")
         );
         s.arm().unwrap();
-        let f = s.grab(soon(), path).unwrap();
+        let f = s.grab(FIRED, soon(), path).unwrap();
         assert_eq!((f.sequence, f.width, f.exposure_us), (0, 2, Some(800)));
+        assert_eq!(f.sensor_time, Duration::from_millis(100_500));
         assert!(matches!(f.data, FrameData::Gray8(ref p) if p == &vec![7; 4]));
-        assert_eq!(s.grab(soon(), path).unwrap().sequence, 1);
-        match s.grab(soon(), path) {
+        assert_eq!(s.grab(FIRED, soon(), path).unwrap().sequence, 1);
+        match s.grab(FIRED, soon(), path) {
             Err(CameraError::LostFrame {
                 expected: 2,
                 got: 3,
@@ -637,13 +792,13 @@ mod tests {
             other => panic!("expected a lost frame, got {other:?}"),
         }
         // counting goes on from the frame that came
-        assert_eq!(s.grab(soon(), path).unwrap().sequence, 4);
+        assert_eq!(s.grab(FIRED, soon(), path).unwrap().sequence, 4);
 
         // the case a session meets on hardware (arm, one grab): the triggered frame was
         // dropped and a later one came; a fresh arming counts from 0 again
         let mut s = stream(vec![grey(2), grey(0)]);
         s.arm().unwrap();
-        match s.grab(soon(), path) {
+        match s.grab(FIRED, soon(), path) {
             Err(CameraError::LostFrame {
                 expected: 0,
                 got: 2,
@@ -652,7 +807,56 @@ mod tests {
             other => panic!("expected a lost frame, got {other:?}"),
         }
         s.arm().unwrap();
-        assert_eq!(s.grab(soon(), path).unwrap().sequence, 0);
+        assert_eq!(s.grab(FIRED, soon(), path).unwrap().sequence, 0);
+    }
+
+    #[test]
+    fn frames_from_before_the_trigger_are_dropped() {
+        let path = Path::new("/dev/video9");
+        let soon = || Instant::now() + Duration::from_millis(50);
+        // a free-running camera: frames 0-2 filled between STREAMON and the drain, 3-4
+        // between arming and the trigger, 6 the first after it (5 dropped, the buffers
+        // being full: nobody's frame)
+        let mut s = stream_holding(
+            3,
+            vec![
+                grey_at(0, 99.90),
+                grey_at(1, 99.93),
+                grey_at(2, 99.96),
+                grey_at(3, 99.97),
+                grey_at(4, 99.99),
+                grey_at(6, 100.02),
+                grey_at(7, 100.05),
+            ],
+        );
+        s.arm().unwrap();
+        assert_eq!(s.stale, 3, "the drain at arming took what was waiting");
+        let f = s.grab(FIRED, soon(), path).unwrap();
+        assert_eq!(
+            (f.sequence, f.sensor_time),
+            (6, Duration::from_millis(100_020))
+        );
+        assert_eq!(s.stale, 5);
+        // and from there on every frame must follow
+        assert_eq!(s.grab(FIRED, soon(), path).unwrap().sequence, 7);
+
+        // only frames from before the trigger: none is taken, the time-out says so
+        let mut s = stream(vec![grey_at(0, 99.0), grey_at(1, 99.5)]);
+        s.arm().unwrap();
+        let e = s.grab(FIRED, soon(), path).unwrap_err();
+        assert!(matches!(e, CameraError::Timeout { stale: 2, .. }), "{e:?}");
+        assert!(e.to_string().contains("2 from before it dropped"), "{e}");
+
+        // a driver whose timestamps are not on the monotonic clock cannot be trusted
+        let mut wall = grey(0).unwrap();
+        wall.1.monotonic = false;
+        let mut s = stream(vec![Ok(wall)]);
+        s.arm().unwrap();
+        let e = s.grab(FIRED, soon(), path).unwrap_err().to_string();
+        assert!(
+            e.contains("CLOCK_MONOTONIC") && e.contains("/dev/video9"),
+            "{e}"
+        );
     }
 
     #[test]
@@ -665,23 +869,24 @@ mod tests {
                 vec![1, 2],
                 BufferMeta {
                     sequence: 0,
-                    sec: 0,
+                    sec: 100,
                     usec: 0,
+                    monotonic: true,
                 },
             )),
         ]);
         s.arm().unwrap();
-        let e = s.grab(soon(), path).unwrap_err().to_string();
+        let e = s.grab(FIRED, soon(), path).unwrap_err().to_string();
         assert!(
             e.contains("cam0") && e.contains("/dev/video9") && e.contains("No such device"),
             "{e}"
         );
         // a short buffer is the device's fault, named, not a panic
-        let e = s.grab(soon(), path).unwrap_err().to_string();
+        let e = s.grab(FIRED, soon(), path).unwrap_err().to_string();
         assert!(e.contains("/dev/video9"), "{e}");
         // nothing more queued: the time limit, not a hang
         assert!(matches!(
-            s.grab(soon(), path),
+            s.grab(FIRED, soon(), path),
             Err(CameraError::Timeout { .. })
         ));
     }

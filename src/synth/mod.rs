@@ -10,6 +10,7 @@ pub mod rig;
 pub mod scanner;
 pub mod semantic;
 pub mod trigger_box;
+pub mod v4l2_driver;
 
 use crate::mesh::{Mesh, V3};
 use std::collections::HashMap;
