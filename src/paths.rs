@@ -7,6 +7,29 @@ use std::path::{Path, PathBuf};
 /// Longest name accepted: far beyond any real id, short enough for every file system.
 pub const MAX_NAME: usize = 128;
 
+/// Checks that free text (a review's reason) reads as one line as written: no control
+/// character, no line or paragraph separator (U+2028, U+2029) and no bidirectional
+/// control (U+061C, U+200E, U+200F, U+202A-U+202E, U+2066-U+2069), which would break a
+/// log line or a CSV row, or show other text than is stored.
+pub fn check_one_line(what: &str, text: &str) -> Result<(), String> {
+    let bad = |c: char| {
+        c.is_control()
+            || matches!(
+                c,
+                '\u{2028}' | '\u{2029}' | '\u{061c}' | '\u{200e}' | '\u{200f}'
+            )
+            || ('\u{202a}'..='\u{202e}').contains(&c)
+            || ('\u{2066}'..='\u{2069}').contains(&c)
+    };
+    match text.chars().find(|&c| bad(c)) {
+        Some(c) => Err(format!(
+            "{what} must be one line of plain text: it holds U+{:04X}",
+            c as u32
+        )),
+        None => Ok(()),
+    }
+}
+
 /// Checks that `name` is a plain file or folder name: 1 to 128 characters of letters,
 /// digits, `-`, `_` and `.`, not starting with a dot (so never `.`, `..`, a hidden file or
 /// a partial set). Returns the reason when it is not; `what` names the thing in the

@@ -204,7 +204,10 @@ fn every_fault_leaves_nothing_half_written_and_says_why() {
     let mut s = session(&root, cameras(&[]), Box::new(SoftwareTrigger), quick());
     let e = s.capture(None).unwrap_err();
     assert!(matches!(e, CaptureError::Write { .. }), "{e}");
-    assert!(e.to_string().contains("captures/sets/."), "{e}");
+    assert!(
+        e.to_string().contains("captures/sets") && e.to_string().contains("Not a directory"),
+        "{e}"
+    );
 }
 
 #[test]
@@ -274,10 +277,9 @@ fn a_hundred_captures_leave_a_hundred_sets() {
     );
 }
 
-#[test]
-fn capture_from_a_station_config() {
-    let dir = tempfile::tempdir().unwrap();
-    let cfg = dir.path().join("station.toml");
+/// A station file with two synthetic cameras writing to `captures/` beside it.
+fn synthetic_station(dir: &Path) -> std::path::PathBuf {
+    let cfg = dir.join("station.toml");
     std::fs::write(
         &cfg,
         r#"
@@ -305,6 +307,13 @@ synthetic = true
 "#,
     )
     .unwrap();
+    cfg
+}
+
+#[test]
+fn capture_from_a_station_config() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = synthetic_station(dir.path());
     let out = std::process::Command::new(env!("CARGO_BIN_EXE_conformd"))
         .args([
             "capture",
@@ -475,4 +484,71 @@ fn a_frame_from_before_the_trigger_is_never_taken() {
             "the buffers filled before the pulse"
         );
     }
+}
+
+/// Two `conformd capture` runs at once into one `captures/` folder (two stations sharing
+/// it, or a script and the daemon), 40 times: 80 sets, each with its own subject and
+/// its own images, none overwritten or mixed.
+#[test]
+fn concurrent_captures_into_one_folder_never_share_an_id() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = synthetic_station(dir.path());
+    let run = |subject: &str| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_conformd"))
+            .args([
+                "capture",
+                "--config",
+                cfg.to_str().unwrap(),
+                "--subject",
+                subject,
+            ])
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap()
+    };
+    let mut subjects = std::collections::BTreeSet::new();
+    for round in 0..40 {
+        let (a, b) = (format!("pig-{round}a"), format!("pig-{round}b"));
+        let (pa, pb) = (run(&a), run(&b));
+        for (p, s) in [(pa, &a), (pb, &b)] {
+            let out = p.wait_with_output().unwrap();
+            assert!(
+                out.status.success(),
+                "round {round}, {s}: {}",
+                String::from_utf8_lossy(&out.stderr)
+            );
+        }
+        subjects.insert(a);
+        subjects.insert(b);
+    }
+    let root = dir.path().join("captures");
+    assert_eq!(only_complete_sets(&root), 80);
+    let mut on_sets = std::collections::BTreeSet::new();
+    for e in std::fs::read_dir(&root).unwrap().flatten() {
+        let m = Manifest::read(&e.path()).unwrap();
+        assert_eq!(
+            m.id,
+            e.file_name().to_string_lossy(),
+            "the folder is its id"
+        );
+        let files: std::collections::BTreeSet<String> = std::fs::read_dir(e.path())
+            .unwrap()
+            .flatten()
+            .map(|f| f.file_name().to_string_lossy().to_string())
+            .collect();
+        let listed: std::collections::BTreeSet<String> = m
+            .cameras
+            .iter()
+            .map(|c| c.file.clone())
+            .chain(["manifest.json".to_string()])
+            .collect();
+        assert_eq!(files, listed, "{}: only its own files", m.id);
+        assert!(
+            on_sets.insert(m.subject.clone().unwrap()),
+            "two sets carry {:?}",
+            m.subject
+        );
+    }
+    assert_eq!(on_sets, subjects, "every subject on exactly one set");
 }

@@ -205,27 +205,45 @@ fn rand_tag() -> u128 {
 
 /// One HTTP request; returns the status and the body.
 fn request(method: &str, url: &str, body: Option<&[u8]>, token: Option<&str>) -> (u16, String) {
+    let auth = token.map(|t| format!("Bearer {t}"));
+    let mut headers = vec![];
+    if let Some(a) = &auth {
+        headers.push(("Authorization", a.as_str()));
+    }
+    if method != "GET" {
+        // every state-changing call is declared JSON, even with no body
+        headers.push(("Content-Type", "application/json"));
+    }
+    request_with(method, url, body, &headers)
+}
+
+/// One HTTP request with exactly these headers; returns the status and the body.
+fn request_with(
+    method: &str,
+    url: &str,
+    body: Option<&[u8]>,
+    headers: &[(&str, &str)],
+) -> (u16, String) {
     let agent: ureq::Agent = ureq::Agent::config_builder()
         .http_status_as_error(false)
         .timeout_global(Some(Duration::from_secs(60)))
         .build()
         .into();
-    let auth = token.map(|t| format!("Bearer {t}"));
     let r = match method {
         "GET" => {
             let mut r = agent.get(url);
-            if let Some(a) = &auth {
-                r = r.header("Authorization", a);
+            for (k, v) in headers {
+                r = r.header(*k, *v);
             }
             r.call()
         }
         _ => {
             let mut r = agent.post(url);
-            if let Some(a) = &auth {
-                r = r.header("Authorization", a);
+            for (k, v) in headers {
+                r = r.header(*k, *v);
             }
             match body {
-                Some(b) => r.header("Content-Type", "application/json").send(b),
+                Some(b) => r.send(b),
                 None => r.send_empty(),
             }
         }
@@ -1418,5 +1436,236 @@ fn landmarks_placed_on_the_page_refit_the_capture_by_them() {
     assert!(
         !set.join("landmarks.txt").exists(),
         "the capture set is not touched"
+    );
+}
+
+/// Issue 42's faults 1, 3 and 4 on a running daemon: two operators reviewing one result at
+/// once (100 rounds, in parallel) never get a 500 or leave a broken review.json; a link
+/// planted in `results/` is neither served nor written through; a request a page of
+/// another site could send (another Origin, a form's or text's content type, none) is
+/// refused, one from the station's own page is not.
+#[test]
+fn results_are_written_whole_served_without_links_and_not_changed_from_other_sites() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let (_, sets) = simulated();
+    let port = free_port();
+    let cfg = station(d, port, "", &[]);
+    let captures = d.join("data/captures");
+    std::fs::create_dir_all(&captures).unwrap();
+    for (i, set) in sets.iter().take(2).enumerate() {
+        drop_set(set, &captures, &format!("h{i}"));
+    }
+    let daemon = Daemon::start(&cfg, port, &[]);
+    daemon.wait_settled(2, Duration::from_secs(180));
+    let results = d.join("data/results");
+
+    // two reviewers at once, 100 rounds each
+    let accepted = br#"{"verdict": "accepted"}"#;
+    let rejected = br#"{"verdict": "rejected", "reason": "hind legs swapped"}"#;
+    let url = daemon.url("/api/captures/h0/review");
+    std::thread::scope(|s| {
+        for body in [&accepted[..], &rejected[..]] {
+            let url = &url;
+            s.spawn(move || {
+                for round in 0..100 {
+                    let (code, text) = request("POST", url, Some(body), None);
+                    assert_eq!(code, 200, "round {round}: {text}");
+                }
+            });
+        }
+        for _ in 0..50 {
+            if let Ok(b) = std::fs::read(results.join("h0/review.json")) {
+                serde_json::from_slice::<serde_json::Value>(&b).expect("review.json is whole");
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+    });
+    let review = conformd::station::review::read(&results.join("h0")).unwrap();
+    assert!(review.is_some());
+    let left: Vec<String> = std::fs::read_dir(results.join("h0"))
+        .unwrap()
+        .flatten()
+        .map(|e| e.file_name().to_string_lossy().to_string())
+        .filter(|n| n.starts_with('.'))
+        .collect();
+    assert!(left.is_empty(), "temporary files left: {left:?}");
+
+    // a link in place of a result's file, and of a whole result folder
+    let outside = d.join("outside");
+    std::fs::create_dir_all(&outside).unwrap();
+    std::fs::write(outside.join("secret"), "root:x:0:0:the station's secrets").unwrap();
+    let view = results.join("h1/view.json");
+    std::fs::remove_file(&view).unwrap();
+    std::os::unix::fs::symlink(outside.join("secret"), &view).unwrap();
+    let (code, body) = daemon.get("/api/captures/h1/view.json");
+    assert!(code == 404 && !body.contains("secrets"), "{code} {body}");
+    assert!(body.contains("symbolic link"), "{body}");
+    std::fs::rename(results.join("h1"), outside.join("h1")).unwrap();
+    std::os::unix::fs::symlink(outside.join("h1"), results.join("h1")).unwrap();
+    for file in ["scan.ply", "report.json", "preview.png"] {
+        let (code, body) = daemon.get(&format!("/api/captures/h1/{file}"));
+        assert_eq!(code, 409, "{file}: {body}");
+    }
+    let (code, body) = request(
+        "POST",
+        &daemon.url("/api/captures/h1/review"),
+        Some(accepted),
+        None,
+    );
+    assert!(
+        code == 409 && body.contains("symbolic link"),
+        "{code} {body}"
+    );
+    assert!(
+        !outside.join("h1/review.json").exists(),
+        "written through the link"
+    );
+    let detail: serde_json::Value =
+        serde_json::from_str(&daemon.get("/api/captures/h1").1).unwrap();
+    assert!(detail["report"].is_null(), "the report read through a link");
+
+    // requests a page of another site could make, and one from the station's own page
+    let own = format!("http://127.0.0.1:{port}");
+    for (headers, code, words) in [
+        (
+            vec![
+                ("Content-Type", "application/json"),
+                ("Origin", "http://evil.example"),
+            ],
+            403,
+            "another site",
+        ),
+        (
+            vec![("Content-Type", "application/json"), ("Origin", "null")],
+            403,
+            "another site",
+        ),
+        (
+            vec![
+                ("Content-Type", "application/json"),
+                ("Sec-Fetch-Site", "cross-site"),
+            ],
+            403,
+            "another site",
+        ),
+        (
+            vec![("Content-Type", "text/plain")],
+            415,
+            "application/json",
+        ),
+        (
+            vec![("Content-Type", "application/x-www-form-urlencoded")],
+            415,
+            "application/json",
+        ),
+        (vec![], 415, "none"),
+        (
+            vec![
+                ("Content-Type", "application/json"),
+                ("Origin", own.as_str()),
+            ],
+            200,
+            "rejected",
+        ),
+    ] {
+        let (got, body) = request_with("POST", &url, Some(rejected), &headers);
+        assert!(
+            got == code && body.contains(words),
+            "{headers:?}: {got} {body}"
+        );
+    }
+    // bodies that are not the object asked for
+    for (body, words) in [
+        (&br#"["accepted"]"#[..], "an array"),
+        (br#""accepted""#, "a string"),
+        (
+            br#"{"verdict": "rejected", "reason": "a\u2028b"}"#,
+            "U+2028",
+        ),
+        (
+            br#"{"verdict": "rejected", "reason": "paid \u202e0001"}"#,
+            "U+202E",
+        ),
+    ] {
+        let (got, text) = request("POST", &url, Some(body), None);
+        assert!(got == 400 && text.contains(words), "{got} {text}");
+    }
+    let (got, text) = request(
+        "POST",
+        &daemon.url("/api/captures/h0/landmarks"),
+        Some(br#"{"landmarks": [{"name": "snout_tip", "position": [0, 0, 0], "by": "me"}]}"#),
+        None,
+    );
+    assert!(got == 400 && text.contains("unknown field"), "{got} {text}");
+    for path in [
+        "/api/trigger",
+        "/api/captures/h0/reprocess",
+        "/api/model/rebuild",
+    ] {
+        let (got, body) = request_with("POST", &daemon.url(path), None, &[]);
+        assert_eq!(got, 415, "{path}: {body}");
+    }
+}
+
+/// Issue 42's fault 9: 700 half-sent requests from one local client took every
+/// descriptor the daemon had until the client let go. Now each connection has a header
+/// time-out and the connections open at once are capped: the station answers /healthz
+/// within one time-out, holds a bounded number of descriptors, and closes every
+/// half-sent request by itself.
+#[test]
+fn half_sent_requests_cannot_starve_the_station() {
+    use std::io::{Read, Write};
+    let dir = tempfile::tempdir().unwrap();
+    let port = free_port();
+    let cfg = station(dir.path(), port, "", &[]);
+    let daemon = Daemon::start(&cfg, port, &[]);
+    let fds = || {
+        std::fs::read_dir(format!("/proc/{}/fd", daemon.child.id()))
+            .map(|r| r.count())
+            .unwrap_or(0)
+    };
+    let before = fds();
+    let mut held = Vec::new();
+    for _ in 0..700 {
+        let mut s = std::net::TcpStream::connect(("127.0.0.1", port)).unwrap();
+        s.write_all(b"GET /healthz HTTP/1.1\r\nHost: 127.0.0.1\r\n")
+            .unwrap();
+        held.push(s);
+    }
+    let t = Instant::now();
+    let (code, body) = daemon.get("/healthz");
+    let waited = t.elapsed();
+    assert_eq!(code, 200, "{body}");
+    assert!(
+        waited < conformd::daemon::http::HEADER_TIMEOUT * 3,
+        "/healthz answered after {waited:?}"
+    );
+    let open = fds();
+    assert!(
+        open <= before + conformd::daemon::http::MAX_CONNECTIONS + 16,
+        "{open} descriptors open (from {before})"
+    );
+    // every half-sent request is closed by the station, none left hanging
+    let limit = Instant::now() + conformd::daemon::http::HEADER_TIMEOUT * 4;
+    for (k, s) in held.iter_mut().enumerate() {
+        let left = limit.saturating_duration_since(Instant::now());
+        s.set_read_timeout(Some(left.max(Duration::from_millis(10))))
+            .unwrap();
+        let mut buf = Vec::new();
+        let r = s.read_to_end(&mut buf);
+        assert!(
+            r.is_ok()
+                || r.as_ref()
+                    .is_err_and(|e| e.kind() == std::io::ErrorKind::ConnectionReset),
+            "connection {k} still open after {:?}: {r:?}",
+            conformd::daemon::http::HEADER_TIMEOUT * 4
+        );
+    }
+    assert_eq!(daemon.get("/healthz").0, 200);
+    assert!(
+        fds() <= before + 4,
+        "descriptors freed: {} (from {before})",
+        fds()
     );
 }

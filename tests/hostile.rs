@@ -352,6 +352,65 @@ fn a_calibration_with_a_zero_focal_length_is_blamed_on_the_file() {
     assert!(!dir.path().join("scan.ply").exists());
 }
 
+/// A calibration file of 100 KB of nested brackets (or nested by indentation) overflowed
+/// OpenCV's recursive parser's stack and aborted the process (exit 134) in `check`,
+/// `reconstruct` and the daemon's start: now it is refused before OpenCV sees it, naming
+/// the file and the line.
+#[test]
+fn a_calibration_nested_too_deep_for_the_parser_is_refused_before_it() {
+    let rig_path = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/rig.example.toml");
+    let rig = conformd::stereo::rig::RigFile::load(&rig_path).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let calib = dir.path().join("calibration");
+    std::fs::create_dir(&calib).unwrap();
+    for pod in rig.pods() {
+        std::fs::write(
+            calib.join(format!("{}.yml", pod.id)),
+            pod.opencv_yaml_of(Some(&rig.name)),
+        )
+        .unwrap();
+    }
+    let second = &rig.pods()[1].id;
+    let file = calib.join(format!("{second}.yml"));
+    let good = std::fs::read_to_string(&file).unwrap();
+    let nested = format!(
+        "%YAML:1.0\n---\nM1: {}{}\n",
+        "[".repeat(50_000),
+        "]".repeat(50_000)
+    );
+    let indented: String = std::iter::once("%YAML:1.0\n---\n".to_string())
+        .chain((0..200).map(|i| format!("{}a{i}:\n", "  ".repeat(i))))
+        .collect();
+    for (what, text) in [("a bracket", nested), ("indentation", indented)] {
+        std::fs::write(&file, &text).unwrap();
+        let err = match conformd::stereo::rig::Reconstruction::load(&rig_path, Some(&calib)) {
+            Err(e) => e.to_string(),
+            Ok(_) => panic!("{what}: a nested calibration was accepted"),
+        };
+        assert!(
+            err.contains(&format!("{second}.yml")) && err.contains(what) && err.contains("line"),
+            "{err}"
+        );
+        refused(
+            dir.path(),
+            &[
+                "reconstruct",
+                "no-such-set",
+                "--rig",
+                rig_path.to_str().unwrap(),
+                "--calibration",
+                "calibration",
+                "--out",
+                "scan.ply",
+            ],
+            &[&format!("{second}.yml"), "nests deeper"],
+        );
+    }
+    // the good file still reads (from memory, as checked)
+    std::fs::write(&file, good).unwrap();
+    conformd::stereo::rig::Reconstruction::load(&rig_path, Some(&calib)).unwrap();
+}
+
 #[test]
 fn names_that_would_escape_their_folder_are_refused_before_anything_is_written() {
     // the command's folder inside a folder of its own, so that a write beside it (an id

@@ -554,6 +554,24 @@ fn check_loads_every_file_the_station_file_names_and_checks_what_the_types_canno
         "{out}"
     );
     assert!(out.contains("u:***@127.0.0.1"), "{out}");
+    // a stiffness for a group the template does not have: every fit would fail on it
+    refused(
+        "[conform.stiffness]\nwings = 2.0\n",
+        &["stiffness names group 'wings'", "it has:"],
+    );
+    // what the daemon makes in the data folder stands there as something else
+    std::fs::create_dir_all(d.join("data")).unwrap();
+    for name in ["results", "landmarks", "captures"] {
+        std::fs::write(d.join("data").join(name), "not a folder").unwrap();
+        refused(
+            "",
+            &[&format!("{name} "), "is a regular file, not a folder"],
+        );
+        std::fs::remove_file(d.join("data").join(name)).unwrap();
+    }
+    std::fs::create_dir(d.join("data/journal.sqlite")).unwrap();
+    refused("", &["journal.sqlite is a folder, not a file"]);
+    std::fs::remove_dir(d.join("data/journal.sqlite")).unwrap();
     // an empty file, and data = ""
     std::fs::write(d.join("empty.toml"), "").unwrap();
     let (ok, _, err) = check_cmd(&d.join("empty.toml"));
@@ -628,4 +646,94 @@ fn the_example_worker_file_is_valid() {
         .replace("postgres://conformd@", "mysql://conformd@");
     let e = StationConfig::parse(&bad, &path).unwrap_err().to_string();
     assert!(e.contains("[journal]") && e.contains("postgres://"), "{e}");
+}
+
+/// Landmarks handed to `process` (the operator's file, `--landmarks`) get the page's
+/// checks before the fit: a template's vertex-index file given for the scan is refused
+/// (its indices would name arbitrary scan points), and so are points off the scan (a file
+/// in centimetres for a scan in metres), with what was expected; nothing is written.
+#[test]
+fn landmarks_given_to_process_are_checked_as_the_page_checks_them() {
+    use conformd::mesh::{Landmark, LandmarkPos, V3};
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let file = station_file(d, "");
+    let cfg = StationConfig::load(&file).unwrap();
+    let mut pipeline = Pipeline::from_config(&cfg).unwrap();
+    let (_, set) = simulated();
+    let names: Vec<String> = pipeline
+        .template_landmarks
+        .as_ref()
+        .expect("the generic pig has landmarks")
+        .iter()
+        .take(6)
+        .map(|l| l.name.clone())
+        .collect();
+    let refused = |pipeline: &mut Pipeline, lms: &[Landmark]| match pipeline.process(
+        set,
+        Some(lms),
+        &mut Control::default(),
+    ) {
+        Err(e) => {
+            assert!(e.stage == Stage::Conform && e.permanent, "{e}");
+            e.to_string()
+        }
+        Ok(_) => panic!("fitted by bad landmarks"),
+    };
+    let as_vertices: Vec<Landmark> = names
+        .iter()
+        .enumerate()
+        .map(|(i, n)| Landmark {
+            name: n.clone(),
+            pos: LandmarkPos::Vertex(10 * i as u32),
+        })
+        .collect();
+    let e = refused(&mut pipeline, &as_vertices);
+    assert!(
+        e.contains("vertex index") && e.contains("name x y z"),
+        "{e}"
+    );
+    // centimetres on a scan in metres
+    let far: Vec<Landmark> = names
+        .iter()
+        .enumerate()
+        .map(|(i, n)| Landmark {
+            name: n.clone(),
+            pos: LandmarkPos::Point(V3::new(
+                40.0 + 10.0 * i as f64,
+                -20.0,
+                60.0 * (i % 2) as f64,
+            )),
+        })
+        .collect();
+    let e = refused(&mut pipeline, &far);
+    assert!(e.contains("off the scan"), "{e}");
+
+    // the command line says the same, exit 1, no result
+    std::fs::write(
+        d.join("far.txt"),
+        conformd::mesh::landmarks::landmarks_text(&far),
+    )
+    .unwrap();
+    let results = d.join("results");
+    let out = Command::new(BIN)
+        .arg("process")
+        .arg(set)
+        .arg("--config")
+        .arg(&file)
+        .arg("--out")
+        .arg(&results)
+        .arg("--landmarks")
+        .arg(d.join("far.txt"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        out.status.code() == Some(1) && err.contains("off the scan"),
+        "{err}"
+    );
+    let written: Vec<_> = std::fs::read_dir(&results)
+        .map(|r| r.flatten().collect())
+        .unwrap_or_default();
+    assert!(written.is_empty(), "{written:?}");
 }

@@ -492,3 +492,64 @@ fn a_worker_runs_the_real_pipeline_and_publishes_whole_results() {
     signal(w.id(), "-TERM");
     assert!(w.wait().unwrap().success());
 }
+
+/// Issue 42's fault 6: a journal server that accepts connections and never answers (a
+/// local listener that only accepts). The worker said nothing for 300 s and the daemon
+/// never bound its port nor heeded SIGTERM. Now the handshake is time-limited: the
+/// worker fails within seconds naming the wait, the daemon serves its API, says the
+/// journal is offline and why, and stops on SIGTERM.
+#[test]
+fn a_journal_server_that_never_answers_hangs_neither_the_worker_nor_the_daemon() {
+    let silent = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let db_port = silent.local_addr().unwrap().port();
+    std::thread::spawn(move || {
+        let mut held = Vec::new();
+        for s in silent.incoming().flatten() {
+            held.push(s); // accepted, never read, never answered
+        }
+    });
+    let url = format!("postgres://conformd@127.0.0.1:{db_port}/conformd");
+    let limit = journal::HANDSHAKE_LIMIT.as_secs_f64();
+
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = config(dir.path(), &url, None, "");
+    let log = dir.path().join("worker.log");
+    let t = Instant::now();
+    let mut worker = spawn(&["worker", "--config", &cfg.display().to_string()], &log);
+    wait_until("the worker to give up", limit * 3.0, || {
+        worker.try_wait().unwrap().is_some()
+    });
+    let text = std::fs::read_to_string(&log).unwrap();
+    assert!(
+        !worker.wait().unwrap().success() && text.contains("has not answered its handshake"),
+        "{text}"
+    );
+    assert!(t.elapsed().as_secs_f64() < limit * 3.0);
+
+    let dir = tempfile::tempdir().unwrap();
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let rig = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/rig.example.toml");
+    let extra = format!(
+        "[rig]\nfile = \"{}\"\n[daemon]\nlisten = \"127.0.0.1:{port}\"\nworkers = 1\n",
+        rig.display()
+    );
+    let cfg = config(dir.path(), &url, None, &extra);
+    let log = dir.path().join("daemon.log");
+    let mut daemon = spawn(&["daemon", "--config", &cfg.display().to_string()], &log);
+    wait_until("the daemon's API", limit * 4.0, || {
+        status(port).is_some_and(|s| {
+            s["journal"]["online"] == false
+                && s["journal"]["error"]
+                    .as_str()
+                    .is_some_and(|e| e.contains("has not answered"))
+        })
+    });
+    signal(daemon.id(), "-TERM");
+    wait_until("the daemon to stop on SIGTERM", 15.0, || {
+        daemon.try_wait().unwrap().is_some()
+    });
+}

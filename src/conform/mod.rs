@@ -581,7 +581,6 @@ fn pair_landmarks(
     tl: &[Landmark],
     sl: &[Landmark],
     template: &Mesh,
-    scan: &Mesh,
 ) -> Result<Pairs, ConformError> {
     let mut p = Pairs {
         names: vec![],
@@ -605,16 +604,9 @@ fn pair_landmarks(
             }
             LandmarkPos::Point(q) => nearest_vertex(&template.vertices, &q),
         };
-        let target = match s.pos {
-            LandmarkPos::Point(q) => q,
-            LandmarkPos::Vertex(i) => *scan.vertices.get(i as usize).ok_or_else(|| {
-                ConformError::Landmarks(format!(
-                    "scan landmark '{}' names vertex {i}, but the scan has {} points",
-                    s.name,
-                    scan.vertices.len()
-                ))
-            })?,
-        };
+        let target = crate::mesh::landmarks::scan_points(std::slice::from_ref(s))
+            .map_err(ConformError::Landmarks)?[0]
+            .1;
         if !target.iter().all(|c| c.is_finite()) {
             return Err(ConformError::Landmarks(format!(
                 "scan landmark '{}' has a non-finite coordinate",
@@ -741,7 +733,7 @@ fn conform_on_pool(
         || (ScanSurface::new(scan), topology::report(template)),
         || -> Result<_, ConformError> {
             let pairs = match landmarks {
-                Some((tl, sl)) => Some(pair_landmarks(tl, sl, template, scan)?),
+                Some((tl, sl)) => Some(pair_landmarks(tl, sl, template)?),
                 None => None,
             };
             let level = multires_level(template, pairs.as_ref(), opts);

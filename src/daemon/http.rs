@@ -4,6 +4,7 @@
 
 use super::journal::{Job, State};
 use super::{BUCKETS, CaptureRequest, Shared};
+use crate::files::DataDir;
 use crate::station::pipeline::PlacedLandmark;
 use crate::station::review::{Review, Verdict};
 use axum::Router;
@@ -48,6 +49,68 @@ pub fn router(shared: Arc<Shared>) -> Router {
         .with_state(shared)
 }
 
+/// Longest a client may take to send a request's headers, counted from the connection's
+/// first byte or from the end of its last response: a half-sent request or an idle
+/// keep-alive connection is closed after it (a browser sends its headers at once).
+pub const HEADER_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(5);
+/// Most connections open at once, well below the unit's `LimitNOFILE` (4096): past it,
+/// new connections wait in the kernel's queue until one closes, instead of taking the
+/// descriptors the journal, the camera and the jobs need.
+pub const MAX_CONNECTIONS: usize = 512;
+
+/// Serves `app` on `listener` until `stop` resolves: every connection with
+/// [`HEADER_TIMEOUT`], at most [`MAX_CONNECTIONS`] at once; then lets the requests in
+/// flight finish and returns once every connection is closed.
+pub async fn serve(
+    listener: tokio::net::TcpListener,
+    app: Router,
+    stop: impl std::future::Future<Output = ()>,
+) {
+    let permits = Arc::new(tokio::sync::Semaphore::new(MAX_CONNECTIONS));
+    let (closing, closing_rx) = tokio::sync::watch::channel(false);
+    let mut connections = tokio::task::JoinSet::new();
+    tokio::pin!(stop);
+    loop {
+        let permit = tokio::select! {
+            p = permits.clone().acquire_owned() => p.expect("the semaphore is never closed"),
+            _ = &mut stop => break,
+        };
+        let stream = tokio::select! {
+            r = listener.accept() => match r {
+                Ok((stream, _)) => stream,
+                Err(e) => {
+                    // out of descriptors, or the peer gave up: not the server's end
+                    tracing::warn!(error = %e, "accepting an HTTP connection failed");
+                    tokio::time::sleep(std::time::Duration::from_millis(100)).await;
+                    continue;
+                }
+            },
+            _ = &mut stop => break,
+        };
+        let service = hyper_util::service::TowerToHyperService::new(app.clone());
+        let mut closing = closing_rx.clone();
+        connections.spawn(async move {
+            let _permit = permit;
+            let mut builder = hyper::server::conn::http1::Builder::new();
+            builder
+                .timer(hyper_util::rt::TokioTimer::new())
+                .header_read_timeout(HEADER_TIMEOUT);
+            let conn = builder.serve_connection(hyper_util::rt::TokioIo::new(stream), service);
+            tokio::pin!(conn);
+            tokio::select! {
+                _ = conn.as_mut() => {}
+                _ = closing.changed() => {
+                    conn.as_mut().graceful_shutdown();
+                    let _ = conn.await;
+                }
+            }
+        });
+        while connections.try_join_next().is_some() {}
+    }
+    let _ = closing.send(true);
+    while connections.join_next().await.is_some() {}
+}
+
 struct ApiError(StatusCode, String);
 
 impl IntoResponse for ApiError {
@@ -84,6 +147,9 @@ async fn require_token(
 ) -> Response {
     // only POSTs change anything; other methods go on to their 405
     let mutating = req.method() == axum::http::Method::POST;
+    if mutating && let Some(refused) = cross_site(&headers) {
+        return refused.into_response();
+    }
     if let Some(token) = shared.cfg.daemon.token.as_ref().filter(|_| mutating) {
         let given = headers
             .get(header::AUTHORIZATION)
@@ -108,6 +174,51 @@ async fn require_token(
         }
     }
     next.run(req).await
+}
+
+/// Refuses a state-changing request that a page of another site, open in the operator's
+/// browser, could have sent: its body must be declared JSON (a page can send a form or
+/// plain text to any site, but JSON only after asking the station, which never agrees),
+/// and an `Origin` or `Sec-Fetch-Site` header must say it came from the station's own
+/// pages. Clients that are not browsers send neither header.
+fn cross_site(headers: &HeaderMap) -> Option<ApiError> {
+    let text = |name: header::HeaderName| headers.get(name).map(|v| v.to_str().unwrap_or("?"));
+    let content_type = text(header::CONTENT_TYPE).unwrap_or("");
+    let media = content_type.split(';').next().unwrap_or("").trim();
+    if !media.eq_ignore_ascii_case("application/json") {
+        return Some(ApiError(
+            StatusCode::UNSUPPORTED_MEDIA_TYPE,
+            format!(
+                "this call takes 'Content-Type: application/json' (the request had {}), even with no body",
+                if content_type.is_empty() {
+                    "none".to_string()
+                } else {
+                    format!("'{}'", content_type.escape_default())
+                }
+            ),
+        ));
+    }
+    if let Some(origin) = text(header::ORIGIN) {
+        let host = text(header::HOST).unwrap_or("");
+        let own = !host.is_empty()
+            && (origin == format!("http://{host}") || origin == format!("https://{host}"));
+        if !own {
+            return Some(ApiError(
+                StatusCode::FORBIDDEN,
+                format!(
+                    "a request from a page of another site (Origin '{}') cannot change this station",
+                    origin.escape_default()
+                ),
+            ));
+        }
+    }
+    if text(header::HeaderName::from_static("sec-fetch-site")) == Some("cross-site") {
+        return Some(ApiError(
+            StatusCode::FORBIDDEN,
+            "a request from a page of another site (Sec-Fetch-Site: cross-site) cannot change this station".into(),
+        ));
+    }
+    None
 }
 
 #[derive(serde::Serialize)]
@@ -258,9 +369,22 @@ struct CaptureDetail {
 }
 
 /// A JSON file of a capture or result, None when it is missing or not JSON.
-fn read_json(p: std::path::PathBuf) -> Option<serde_json::Value> {
-    serde_json::from_slice(&crate::files::read_limited(&p, crate::files::MAX_REPORT_BYTES).ok()?)
-        .ok()
+fn read_json(dir: &DataDir, name: &str) -> Option<serde_json::Value> {
+    serde_json::from_slice(&dir.read(name, crate::files::MAX_REPORT_BYTES).ok()?).ok()
+}
+
+/// A capture's or result's folder inside the data folder, reached without following a
+/// link: 404 when it is gone, 409 when a link or a file stands in its place.
+fn data_dir(shared: &Shared, dir: &std::path::Path) -> Api<DataDir> {
+    DataDir::open(&shared.cfg.station.data, dir).map_err(|e| match &e {
+        crate::files::FileError::Io { source, .. }
+            if source.kind() == std::io::ErrorKind::NotFound =>
+        {
+            ApiError(StatusCode::NOT_FOUND, format!("{e}: the folder is gone"))
+        }
+        crate::files::FileError::Content { .. } => ApiError(StatusCode::CONFLICT, e.to_string()),
+        _ => internal(e),
+    })
 }
 
 /// Results that await an operator's review: the newest [`REVIEW_SCAN`] finished ones
@@ -270,11 +394,11 @@ fn awaiting_review(shared: &Shared) -> Vec<AwaitingReview> {
     let done = shared.journal_result(done).unwrap_or_default();
     done.into_iter()
         .filter_map(|j| {
-            let dir = j.result?;
-            if dir.join(crate::station::review::REVIEW_FILE).exists() {
+            let dir = data_dir(shared, &j.result?).ok()?;
+            if dir.has(crate::station::review::REVIEW_FILE) {
                 return None;
             }
-            let report = read_json(dir.join("report.json"))?;
+            let report = read_json(&dir, "report.json")?;
             let warning = report["conformation"]["distortion_warning"].as_str()?;
             Some(AwaitingReview {
                 capture: j.id,
@@ -297,15 +421,14 @@ struct AwaitingReview {
 
 fn detail(shared: &Shared, id: &str) -> Api<CaptureDetail> {
     let job = job_or_404(shared, id)?;
-    let manifest = read_json(job.dir.join("manifest.json"));
-    let report = job
-        .result
+    let manifest = data_dir(shared, &job.dir)
+        .ok()
+        .and_then(|d| read_json(&d, "manifest.json"));
+    let result = job.result.as_ref().and_then(|r| data_dir(shared, r).ok());
+    let report = result.as_ref().and_then(|d| read_json(d, "report.json"));
+    let review = result
         .as_ref()
-        .and_then(|r| read_json(r.join("report.json")));
-    let review = job
-        .result
-        .as_ref()
-        .and_then(|r| crate::station::review::read(r).ok().flatten());
+        .and_then(|d| crate::station::review::read_in(d).ok().flatten());
     let placed_landmarks = read_placed(&shared.cfg.station.landmarks(), id);
     Ok(CaptureDetail {
         job,
@@ -347,13 +470,13 @@ async fn capture_file(
             format!("capture '{id}' has no result yet"),
         )
     })?;
-    let path = dir.join(&file);
     let bytes = tokio::task::spawn_blocking(move || {
-        crate::files::read_limited(&path, crate::mesh::io::MAX_MESH_BYTES)
+        data_dir(&shared, &dir)?
+            .read(&file, crate::mesh::io::MAX_MESH_BYTES)
+            .map_err(|e| ApiError(StatusCode::NOT_FOUND, e.to_string()))
     })
     .await
-    .map_err(|e| ApiError(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?
-    .map_err(|e| ApiError(StatusCode::NOT_FOUND, format!("{file}: {e}")))?;
+    .map_err(internal)??;
     Ok(([(header::CONTENT_TYPE, kind)], bytes).into_response())
 }
 
@@ -417,12 +540,7 @@ async fn trigger(Ctx(shared): Ctx<Arc<Shared>>, body: axum::body::Bytes) -> Api<
     let req: TriggerBody = if body.is_empty() {
         TriggerBody::default()
     } else {
-        serde_json::from_slice(&body).map_err(|e| {
-            ApiError(
-                StatusCode::BAD_REQUEST,
-                format!("expected {{\"subject\": \"ID\"}} or no body: {e}"),
-            )
-        })?
+        json_body(&body, r#"{"subject": "ID"} or no body"#)?
     };
     if let Some(s) = &req.subject {
         crate::paths::check_plain_name("subject", s)
@@ -455,10 +573,29 @@ async fn trigger(Ctx(shared): Ctx<Arc<Shared>>, body: axum::body::Bytes) -> Api<
     }
 }
 
-/// A request body as `T`, or a 400 saying what was `expected` and what was wrong.
+/// A request body as `T`, or a 400 saying what was `expected` and what was wrong. The
+/// body must be a JSON object: serde would take `["accepted"]` for a struct too.
 fn json_body<T: serde::de::DeserializeOwned>(body: &[u8], expected: &str) -> Api<T> {
-    serde_json::from_slice(body)
-        .map_err(|e| ApiError(StatusCode::BAD_REQUEST, format!("expected {expected}: {e}")))
+    let bad = |e: String| ApiError(StatusCode::BAD_REQUEST, format!("expected {expected}: {e}"));
+    let value: serde_json::Value = serde_json::from_slice(body).map_err(|e| bad(e.to_string()))?;
+    if !value.is_object() {
+        return Err(bad(format!(
+            "the body is {}, not an object",
+            json_kind(&value)
+        )));
+    }
+    serde_json::from_value(value).map_err(|e| bad(e.to_string()))
+}
+
+fn json_kind(v: &serde_json::Value) -> &'static str {
+    match v {
+        serde_json::Value::Null => "null",
+        serde_json::Value::Bool(_) => "a boolean",
+        serde_json::Value::Number(_) => "a number",
+        serde_json::Value::String(_) => "a string",
+        serde_json::Value::Array(_) => "an array",
+        serde_json::Value::Object(_) => "an object",
+    }
 }
 
 /// The result folder of a finished `job`, or a 409 saying `why` one is needed.
@@ -496,10 +633,12 @@ async fn review(
         .map_err(|e| ApiError(StatusCode::BAD_REQUEST, e))?;
     let dir = finished_result(job, "only a finished result can be reviewed")?;
     let written = review.clone();
-    tokio::task::spawn_blocking(move || crate::station::review::write(&dir, &written))
-        .await
-        .map_err(internal)?
-        .map_err(internal)?;
+    let ctx = shared.clone();
+    tokio::task::spawn_blocking(move || {
+        crate::station::review::write_in(&data_dir(&ctx, &dir)?, &written).map_err(internal)
+    })
+    .await
+    .map_err(internal)??;
     tracing::info!(capture = %id, verdict = ?review.verdict, reason = review.reason.as_deref().unwrap_or(""), "result reviewed");
     Ok(axum::Json(serde_json::json!({ "capture": id, "review": review })).into_response())
 }
@@ -541,14 +680,13 @@ async fn place_landmarks(
         r#"{"landmarks": [{"name": "...", "position": [x, y, z]}, ...]}"#,
     )?;
     let dir = finished_result(job, "landmarks are placed on a finished result's scan")?;
-    let (folder, cid) = (shared.cfg.station.landmarks(), id.clone());
+    let (folder, cid, ctx) = (shared.cfg.station.landmarks(), id.clone(), shared.clone());
     let checked = tokio::task::spawn_blocking(move || -> Result<usize, ApiError> {
         let conflict = |e: String| ApiError(StatusCode::CONFLICT, e);
+        let result = data_dir(&ctx, &dir)?;
         let view: crate::station::view::View = serde_json::from_slice(
-            &crate::files::read_limited(
-                &dir.join(crate::station::view::VIEW_FILE),
-                crate::files::MAX_REPORT_BYTES,
-            )
+            &result
+                .read(crate::station::view::VIEW_FILE, crate::files::MAX_REPORT_BYTES)
             .map_err(|e| {
                 conflict(format!(
                     "{e}: this result does not say which landmarks the template has; reprocess it once"
@@ -562,13 +700,22 @@ async fn place_landmarks(
                 "the station's template has no landmarks to place ([template] landmarks)".into(),
             ));
         }
-        let scan =
-            crate::mesh::read_mesh(&dir.join("scan.ply")).map_err(|e| conflict(e.to_string()))?;
+        let scan = result
+            .read("scan.ply", crate::mesh::io::MAX_MESH_BYTES)
+            .and_then(|b| crate::mesh::io::mesh_from_bytes(&dir.join("scan.ply"), &b))
+            .map_err(|e| conflict(e.to_string()))?;
         let lms = crate::station::placed::check(&req.landmarks, &names, &scan)
             .map_err(|e| ApiError(StatusCode::BAD_REQUEST, e))?;
-        std::fs::create_dir_all(&folder).map_err(internal)?;
-        crate::files::write_atomic(
-            &folder.join(format!("{cid}.txt")),
+        std::fs::create_dir_all(&folder).map_err(|e| {
+            conflict(format!(
+                "{}: {e}: the station keeps placed landmarks in this folder",
+                folder.display()
+            ))
+        })?;
+        let kept = data_dir(&ctx, &folder)?;
+        let _one_writer = kept.lock().map_err(internal)?;
+        kept.write_atomic(
+            &format!("{cid}.txt"),
             crate::station::placed::text(&lms, &cid).as_bytes(),
         )
         .map_err(internal)?;

@@ -381,15 +381,11 @@ async fn serve(
         })?;
     let app = http::router(shared.clone());
     let stop = shared.clone();
-    let server = tokio::spawn(async move {
-        let _ = axum::serve(listener, app)
-            .with_graceful_shutdown(async move {
-                while !stop.stopping.load(Ordering::SeqCst) {
-                    tokio::time::sleep(Duration::from_millis(100)).await;
-                }
-            })
-            .await;
-    });
+    let server = tokio::spawn(http::serve(listener, app, async move {
+        while !stop.stopping.load(Ordering::SeqCst) {
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        }
+    }));
 
     let (hint_tx, mut hints) = tokio::sync::mpsc::channel::<()>(16);
     let _watcher = if shared.cfg.daemon.watch {
@@ -681,15 +677,14 @@ pub fn scan(shared: &Shared) {
         .collect();
     for (name, dir) in from_incoming.sets {
         let to = captures.join(&name);
-        if to.exists() {
-            refused.insert(
-                format!("incoming/{name}"),
-                "not moved: captures/ already has a set of this id (rename one of them)".into(),
-            );
-            continue;
-        }
-        match std::fs::rename(&dir, &to) {
+        match crate::files::rename_no_replace(&dir, &to) {
             Ok(()) => info!(capture = %name, "taken in from incoming/"),
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
+                refused.insert(
+                    format!("incoming/{name}"),
+                    "not moved: captures/ already has a set of this id (rename one of them)".into(),
+                );
+            }
             Err(e) => {
                 refused.insert(
                     format!("incoming/{name}"),

@@ -62,10 +62,39 @@ fn check_files(cfg: &StationConfig) -> Result<(), JobError> {
             )));
         }
     }
-    if cfg.station.data.exists() && !cfg.station.data.is_dir() {
+    // what the daemon makes in the data folder must be what it would make, or absent
+    let s = &cfg.station;
+    let captures = cfg
+        .capture
+        .as_ref()
+        .and_then(|c| c.root.clone())
+        .unwrap_or_else(|| s.captures());
+    for (what, dir) in [
+        ("data", s.data.clone()),
+        ("captures", captures),
+        ("incoming", s.incoming()),
+        ("results", s.results()),
+        ("landmarks", s.landmarks()),
+    ] {
+        if let Ok(m) = std::fs::metadata(&dir)
+            && !m.is_dir()
+        {
+            return Err(fail(format!(
+                "[station]: {what} {} is a {}, not a folder",
+                dir.display(),
+                crate::files::kind_of(&m)
+            )));
+        }
+    }
+    let sqlite = s.data.join("journal.sqlite");
+    if cfg.journal.url.is_none()
+        && let Ok(m) = std::fs::metadata(&sqlite)
+        && !m.is_file()
+    {
         return Err(fail(format!(
-            "[station]: data {} is not a folder",
-            cfg.station.data.display()
+            "[station]: the journal {} is a {}, not a file",
+            sqlite.display(),
+            crate::files::kind_of(&m)
         )));
     }
     Ok(())

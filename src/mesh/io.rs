@@ -22,13 +22,19 @@ fn content_err(path: &str, msg: impl Into<String>) -> FileError {
 ///
 /// Example: `let scan = conformd::mesh::read_mesh("scan.ply".as_ref())?;`
 pub fn read_mesh(path: &Path) -> Result<Mesh, FileError> {
+    let bytes = read_limited(path, MAX_MESH_BYTES)?;
+    mesh_from_bytes(path, &bytes)
+}
+
+/// [`read_mesh`] of bytes already read (from a folder opened without following links):
+/// the reader chosen by `path`'s extension, which also names the file in errors.
+pub fn mesh_from_bytes(path: &Path, bytes: &[u8]) -> Result<Mesh, FileError> {
     let name = path.display().to_string();
     let ext = extension(path);
-    let bytes = read_limited(path, MAX_MESH_BYTES)?;
     let mesh = match ext.as_str() {
-        "ply" => read_ply_bytes(&name, &bytes),
-        "obj" => read_obj_bytes(&name, &bytes),
-        "off" => read_off_bytes(&name, &bytes),
+        "ply" => read_ply_bytes(&name, bytes),
+        "obj" => read_obj_bytes(&name, bytes),
+        "off" => read_off_bytes(&name, bytes),
         _ => Err(FileError::Format { path: name.clone() }),
     }?;
     // held here, not in the format readers: a coordinate of 1e300 is valid PLY

@@ -173,6 +173,21 @@ pub fn resolve(lms: &[Landmark], mesh: &Mesh) -> Result<Vec<(String, V3)>, Strin
         .collect()
 }
 
+/// Scan landmarks as points. A landmark given as a vertex index is refused: a scan's
+/// points come in no fixed order (a reconstruction numbers them anew each time), so an
+/// index from a template's landmark file, used on a scan, names an arbitrary point.
+pub fn scan_points(lms: &[Landmark]) -> Result<Vec<(String, V3)>, String> {
+    lms.iter()
+        .map(|l| match l.pos {
+            LandmarkPos::Point(p) => Ok((l.name.clone(), p)),
+            LandmarkPos::Vertex(i) => Err(format!(
+                "scan landmark '{}' is given as vertex index {i}; a scan's landmarks are points, one 'name x y z' line each (vertex indices belong in a template's landmark file)",
+                l.name
+            )),
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

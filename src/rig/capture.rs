@@ -6,8 +6,8 @@
 //! without a manifest under `captures/`.
 
 use super::camera::{Camera, CameraError, CameraSettings, Frame};
-use super::capture_set::write_capture_set;
 pub use super::capture_set::{CameraRecord, Manifest, TriggerRecord, utc_stamp};
+use super::capture_set::{id_taken, write_capture_set};
 use super::trigger::{BoxEvent, TriggerBox, TriggerError, TriggerLink};
 use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
@@ -119,6 +119,8 @@ pub enum CaptureError {
     Write { path: String, msg: String },
     #[error("{0}")]
     Subject(String),
+    #[error("{0}")]
+    IdTaken(String),
     #[error("capture failed {attempts} times; last: {last}")]
     GaveUp {
         attempts: u32,
@@ -135,7 +137,7 @@ pub struct Session {
     pub options: CaptureOptions,
     pub settings: CameraSettings,
     sequence: u32,
-    last_id: String,
+    last_stamp: String,
     counter: u32,
 }
 
@@ -177,7 +179,7 @@ impl Session {
             options,
             settings,
             sequence: 0,
-            last_id: String::new(),
+            last_stamp: String::new(),
             counter: 0,
         }
     }
@@ -190,17 +192,25 @@ impl Session {
         Ok(())
     }
 
-    /// A new capture id: UTC time, then a counter, unique per station and time-ordered.
+    /// A new capture id: UTC time to the millisecond, a counter within the millisecond
+    /// (this session's ids sort in the order taken), then 6 random hex digits
+    /// (`20261122T045012.345Z-000-3f9c02`), so that two processes, or two stations sharing
+    /// one `captures/` folder, do not pick one id by chance; the writer's exclusive create
+    /// and no-replace rename make sure of it.
     pub fn next_id(&mut self) -> String {
         let stamp = utc_stamp(SystemTime::now());
-        self.counter = if stamp == self.last_id {
+        self.counter = if stamp == self.last_stamp {
             self.counter + 1
         } else {
             0
         };
-        self.last_id = stamp.clone();
+        self.last_stamp = stamp.clone();
         loop {
-            let id = format!("{stamp}-{:03}", self.counter);
+            let id = format!(
+                "{stamp}-{:03}-{:06x}",
+                self.counter,
+                rand::random::<u32>() & 0xff_ffff
+            );
             if !self.root.join(&id).exists() && !self.root.join("failed").join(&id).exists() {
                 return id;
             }
@@ -236,7 +246,7 @@ impl Session {
     }
 
     fn attempt(&mut self, subject: Option<&str>) -> Result<CaptureSet, CaptureError> {
-        let id = self.next_id();
+        let mut id = self.next_id();
         let started = SystemTime::now();
         let frames = self.collect();
         for c in &mut self.cameras {
@@ -244,10 +254,19 @@ impl Session {
         }
         let result = frames.and_then(|(frames, box_time)| {
             check_skew(&frames, self.options.max_skew_ms)?;
+            // an id another writer took in the meantime: the same frames under a new one
+            for _ in 0..8 {
+                match self.write(&id, subject, started, &frames, box_time) {
+                    Err(CaptureError::IdTaken(_)) => id = self.next_id(),
+                    r => return r,
+                }
+            }
             self.write(&id, subject, started, &frames, box_time)
         });
-        if let Err(e) = &result {
-            self.discard(&id, e);
+        match &result {
+            // the partial folder of that id is the other writer's
+            Err(CaptureError::IdTaken(_)) | Ok(_) => {}
+            Err(e) => self.discard(&id, e),
         }
         result
     }
@@ -316,11 +335,16 @@ impl Session {
             },
             cameras,
         };
-        let dir =
-            write_capture_set(&self.root, &manifest, &files).map_err(|e| CaptureError::Write {
-                path: e.path().to_string(),
-                msg: e.to_string(),
-            })?;
+        let dir = write_capture_set(&self.root, &manifest, &files).map_err(|e| {
+            if id_taken(&e) {
+                CaptureError::IdTaken(e.to_string())
+            } else {
+                CaptureError::Write {
+                    path: e.path().to_string(),
+                    msg: e.to_string(),
+                }
+            }
+        })?;
         Ok(CaptureSet {
             id: id.into(),
             dir,
@@ -340,7 +364,7 @@ impl Session {
                     let _ = std::fs::create_dir_all(&partial);
                 }
                 let _ = std::fs::write(partial.join("reason.txt"), format!("{why}\n"));
-                if std::fs::rename(&partial, &failed).is_ok() {
+                if crate::files::rename_no_replace(&partial, &failed).is_ok() {
                     return;
                 }
             }

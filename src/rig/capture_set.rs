@@ -4,7 +4,7 @@
 //! plain names inside the set, files are regular and size-limited, images are checked
 //! against the manifest before anyone matches them.
 
-use crate::files::{sync_dir, write_synced};
+use crate::files::{rename_no_replace, sync_dir, write_synced};
 use crate::paths::check_plain_name;
 use std::path::{Path, PathBuf};
 use std::time::{SystemTime, UNIX_EPOCH};
@@ -364,17 +364,24 @@ pub fn write_capture_set(
     }
     let partial = root.join(format!(".{}.partial", manifest.id));
     let dir = root.join(&manifest.id);
+    let taken = |p: &Path| CaptureSetError::Io {
+        path: p.display().to_string(),
+        source: std::io::Error::new(
+            std::io::ErrorKind::AlreadyExists,
+            "another writer has a set of this id",
+        ),
+    };
     if dir.exists() {
-        return Err(CaptureSetError::Io {
-            path: dir.display().to_string(),
-            source: std::io::Error::new(
-                std::io::ErrorKind::AlreadyExists,
-                "a set with this id exists",
-            ),
-        });
+        return Err(taken(&dir));
+    }
+    std::fs::create_dir_all(root).map_err(io_err(root))?;
+    // created, not reused: a second writer of this id fails here instead of mixing its
+    // images into ours (and never removes ours on its way out)
+    match std::fs::create_dir(&partial) {
+        Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => return Err(taken(&partial)),
+        r => r.map_err(io_err(&partial))?,
     }
     let result = (|| {
-        std::fs::create_dir_all(&partial).map_err(io_err(&partial))?;
         for (name, bytes) in files {
             let p = partial.join(name);
             write_synced(&p, bytes).map_err(io_err(&p))?;
@@ -384,7 +391,10 @@ pub fn write_capture_set(
         let mp = partial.join("manifest.json");
         write_synced(&mp, &json).map_err(io_err(&mp))?;
         sync_dir(&partial);
-        std::fs::rename(&partial, &dir).map_err(io_err(&dir))?;
+        match rename_no_replace(&partial, &dir) {
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => return Err(taken(&dir)),
+            r => r.map_err(io_err(&dir))?,
+        }
         sync_dir(root);
         Ok(dir.clone())
     })();
@@ -392,6 +402,12 @@ pub fn write_capture_set(
         let _ = std::fs::remove_dir_all(&partial);
     }
     result
+}
+
+/// Whether a write failed only because the id was taken (another writer's set), so the
+/// writer may try again under a new id.
+pub fn id_taken(e: &CaptureSetError) -> bool {
+    matches!(e, CaptureSetError::Io { source, .. } if source.kind() == std::io::ErrorKind::AlreadyExists)
 }
 
 #[cfg(test)]

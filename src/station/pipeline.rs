@@ -114,6 +114,8 @@ pub enum PipelineError {
     Model(#[from] ModelError),
     #[error("{0}")]
     Measure(String),
+    #[error("{file}: [conform] {msg}")]
+    Conform { file: String, msg: String },
 }
 
 /// What a long stage reports while it runs.
@@ -183,6 +185,7 @@ pub struct ProcessReport {
 
 /// A scan landmark as the report names it.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct PlacedLandmark {
     pub name: String,
     pub position: [f64; 3],
@@ -544,6 +547,21 @@ impl Pipeline {
             Some((_, fig)) => (fig.mesh.clone(), Some(fig.landmarks())),
             None => source.load()?,
         };
+        // each capture's fit would fail on it: said once, here, and by `check`
+        if let Some(g) = cfg
+            .conform
+            .stiffness
+            .keys()
+            .find(|g| !template.groups.contains_key(*g))
+        {
+            return Err(PipelineError::Conform {
+                file: cfg.file.display().to_string(),
+                msg: format!(
+                    "stiffness names group '{g}', which the template does not have (it has: {})",
+                    template.group_names()
+                ),
+            });
+        }
         let measuring =
             Measuring::from_config(cfg, figure, &template, template_landmarks.as_deref())?;
         let reconstruction = Reconstruction::load(&rig.file, rig.calibration.as_deref())?;
@@ -638,10 +656,30 @@ impl Pipeline {
 
         control.stage(Stage::Conform);
         let t = Instant::now();
-        let pairs = match (scan_landmarks, self.template_landmarks.as_deref()) {
-            (None, _) => None,
+        // an operator's landmarks pass the page's checks here too (points, on the scan,
+        // finite, not in one plane), whether they came from the page or a file
+        let checked = match (scan_landmarks, self.template_landmarks.as_deref()) {
+            (Some(s), Some(t)) => {
+                let bad = |e: String| {
+                    StageError::new(Stage::Conform, &id, ConformError::Landmarks(e).into())
+                };
+                let placed: Vec<PlacedLandmark> = crate::mesh::landmarks::scan_points(s)
+                    .map_err(bad)?
+                    .into_iter()
+                    .map(|(name, p)| PlacedLandmark {
+                        name,
+                        position: [p.x, p.y, p.z],
+                    })
+                    .collect();
+                let names: Vec<String> = t.iter().map(|l| l.name.clone()).collect();
+                Some(super::placed::check(&placed, &names, &scan).map_err(bad)?)
+            }
+            _ => None,
+        };
+        let pairs = match (checked.as_deref(), self.template_landmarks.as_deref()) {
             (Some(s), Some(t)) => Some((t, s)),
-            (Some(_), None) => {
+            _ if scan_landmarks.is_none() => None,
+            _ => {
                 return Err(StageError::new(
                     Stage::Conform,
                     &id,
@@ -652,18 +690,17 @@ impl Pipeline {
                 ));
             }
         };
-        let placed = scan_landmarks
-            .map(|l| crate::mesh::landmarks::resolve(l, &scan))
-            .transpose()
-            .map_err(|e| StageError::new(Stage::Conform, &id, ConformError::Landmarks(e).into()))?
-            .map(|l| {
-                l.into_iter()
-                    .map(|(name, p)| PlacedLandmark {
-                        name,
+        let placed = checked.as_ref().map(|l| {
+            l.iter()
+                .filter_map(|l| match l.pos {
+                    crate::mesh::LandmarkPos::Point(p) => Some(PlacedLandmark {
+                        name: l.name.clone(),
                         position: [p.x, p.y, p.z],
-                    })
-                    .collect()
-            });
+                    }),
+                    crate::mesh::LandmarkPos::Vertex(_) => None,
+                })
+                .collect()
+        });
         let never = AtomicBool::new(false);
         let cancel = control.cancel.unwrap_or(&never);
         let conformed = {

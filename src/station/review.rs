@@ -3,6 +3,7 @@
 //! new result starts unreviewed, and whatever reads the results folder (the export, the
 //! weight fit, the daemon's model rebuild) leaves a rejected result out.
 
+use crate::files::DataDir;
 use std::path::Path;
 
 pub const REVIEW_FILE: &str = "review.json";
@@ -42,9 +43,7 @@ impl Review {
                     r.chars().count()
                 ));
             }
-            if r.chars().any(char::is_control) {
-                return Err("the reason must be one line without control characters".into());
-            }
+            crate::paths::check_one_line("the reason", r)?;
         }
         if verdict == Verdict::Rejected && reason.is_none() {
             return Err("a rejection needs a reason (what is wrong with the result)".into());
@@ -59,21 +58,37 @@ impl Review {
 
 /// The review of the result in `dir`, None when it has none.
 pub fn read(dir: &Path) -> Result<Option<Review>, String> {
-    let path = dir.join(REVIEW_FILE);
-    if !path.exists() {
-        return Ok(None);
-    }
-    let bytes = crate::files::read_limited(&path, crate::files::MAX_REPORT_BYTES)
-        .map_err(|e| e.to_string())?;
-    serde_json::from_slice(&bytes)
-        .map(Some)
-        .map_err(|e| format!("{}: not a review: {e}", path.display()))
+    read_in(&DataDir::open(dir, dir).map_err(|e| e.to_string())?)
 }
 
-/// Writes the review of the result in `dir` (atomically, replacing an older one).
+/// [`read`] in a result folder opened without following links (a `review.json` that is
+/// a link is refused, not followed).
+pub fn read_in(dir: &DataDir) -> Result<Option<Review>, String> {
+    if !dir.has(REVIEW_FILE) {
+        return Ok(None);
+    }
+    let bytes = dir
+        .read(REVIEW_FILE, crate::files::MAX_REPORT_BYTES)
+        .map_err(|e| e.to_string())?;
+    serde_json::from_slice(&bytes).map(Some).map_err(|e| {
+        format!(
+            "{}: not a review: {e}",
+            dir.path().join(REVIEW_FILE).display()
+        )
+    })
+}
+
+/// Writes the review of the result in `dir` (see [`write_in`]).
 pub fn write(dir: &Path, review: &Review) -> Result<(), crate::files::FileError> {
+    write_in(&DataDir::open(dir, dir)?, review)
+}
+
+/// Writes the review of the result in `dir` (atomically, replacing an older one), one
+/// writer at a time: two verdicts given at once each land whole, the later one stays.
+pub fn write_in(dir: &DataDir, review: &Review) -> Result<(), crate::files::FileError> {
     let json = serde_json::to_vec_pretty(review).expect("a review serialises");
-    crate::files::write_atomic(&dir.join(REVIEW_FILE), &json)
+    let _one_writer = dir.lock()?;
+    dir.write_atomic(REVIEW_FILE, &json)
 }
 
 /// Whether the result in `dir` is to be left out of exports, models and fits: it was
@@ -93,6 +108,15 @@ mod tests {
         assert!(Review::new(Verdict::Rejected, None, 0.0).is_err());
         assert!(Review::new(Verdict::Rejected, Some("  ".into()), 0.0).is_err());
         assert!(Review::new(Verdict::Rejected, Some("a\nb".into()), 0.0).is_err());
+        for sneaky in [
+            "a\u{2028}b",
+            "a\u{2029}b",
+            "paid \u{202e}0001\u{202c}",
+            "x\u{2066}y",
+        ] {
+            let e = Review::new(Verdict::Rejected, Some(sneaky.into()), 0.0).unwrap_err();
+            assert!(e.contains("one line") && e.contains("U+"), "{e}");
+        }
         assert!(Review::new(Verdict::Accepted, Some("x".repeat(501)), 0.0).is_err());
         let r = Review::new(Verdict::Accepted, None, 1.0).unwrap();
         assert_eq!(r.reason, None);

@@ -329,6 +329,57 @@ pub struct CalibrationOrigin {
     pub image: Option<(u32, u32)>,
 }
 
+/// Deepest nesting of a calibration file (brackets, or block indentation in steps of
+/// two): a calibration nests two levels; OpenCV's parser recurses once per level and a
+/// file of 100,000 brackets overflows its stack.
+const MAX_YAML_DEPTH: usize = 32;
+
+/// Refuses what OpenCV's YAML parser should not be given: NUL bytes (its strings end
+/// there) and nesting deeper than [`MAX_YAML_DEPTH`], in brackets, indentation or a run
+/// of `- ` on one line. Quoted text and comments are not counted.
+pub fn check_yaml_shape(text: &str) -> Result<(), String> {
+    if text.contains('\0') {
+        return Err("holds a NUL byte: not a calibration file".into());
+    }
+    let mut depth = 0usize;
+    for (n, line) in text.lines().enumerate() {
+        let deep = |what: &str| {
+            Err(format!(
+                "line {}: {what} nests deeper than {MAX_YAML_DEPTH} levels; a calibration file nests two",
+                n + 1
+            ))
+        };
+        let body = line.trim_start_matches(' ');
+        if (line.len() - body.len()) / 2 > MAX_YAML_DEPTH {
+            return deep("indentation");
+        }
+        let dashes = body
+            .split_inclusive(' ')
+            .take_while(|w| w.trim_end() == "-")
+            .count();
+        if dashes > MAX_YAML_DEPTH {
+            return deep("a run of '- '");
+        }
+        let mut quote = None;
+        for c in body.chars() {
+            match (quote, c) {
+                (None, '#') => break,
+                (None, '"' | '\'') => quote = Some(c),
+                (Some(q), c) if c == q => quote = None,
+                (None, '[' | '{') => {
+                    depth += 1;
+                    if depth > MAX_YAML_DEPTH {
+                        return deep("a bracket");
+                    }
+                }
+                (None, ']' | '}') => depth = depth.saturating_sub(1),
+                _ => {}
+            }
+        }
+    }
+    Ok(())
+}
+
 /// Reads a pod's calibration (M1 D1 M2 D2 R T, as written by `calibrate` or `simulate`)
 /// through OpenCV's FileStorage, with the rig, pod and image size it names; the pose in
 /// the rig frame is the caller's. `width` x `height` apply when the file names no size.
@@ -340,9 +391,16 @@ pub fn read_yaml(
     height: u32,
 ) -> Result<(Pod, CalibrationOrigin), String> {
     let name = path.display().to_string();
-    crate::files::check_regular_path(path, 1 << 20).map_err(|e| e.to_string())?;
+    // read once, checked, and parsed from memory: the file OpenCV parses is the one
+    // checked, and a shape its recursive parser cannot take never reaches it
+    let text = crate::files::read_text_limited(path, 1 << 20).map_err(|e| e.to_string())?;
+    check_yaml_shape(&text).map_err(|e| format!("{name}: {e}"))?;
     let run = || -> opencv::Result<Result<(Pod, CalibrationOrigin), String>> {
-        let fs = core::FileStorage::new(&name, core::FileStorage_Mode::READ as i32, "")?;
+        let fs = core::FileStorage::new(
+            &text,
+            core::FileStorage_Mode::READ as i32 | core::FileStorage_Mode::MEMORY as i32,
+            "",
+        )?;
         if !fs.is_opened()? {
             return Ok(Err(format!(
                 "{name}: cannot be opened as an OpenCV calibration file"

@@ -9,6 +9,7 @@
 
 pub mod cluster;
 mod postgres;
+pub use postgres::HANDSHAKE_LIMIT;
 mod sqlite;
 
 use std::path::{Path, PathBuf};

@@ -11,7 +11,8 @@ use super::{
 use postgres::fallible_iterator::FallibleIterator;
 use postgres::{Client, NoTls, Row};
 use std::path::{Path, PathBuf};
-use std::time::Duration;
+use std::sync::mpsc::{Receiver, RecvTimeoutError};
+use std::time::{Duration, Instant};
 
 const CHANNEL: &str = "conformd_jobs";
 /// The database's clock, Unix seconds.
@@ -20,9 +21,16 @@ const DB_NOW: &str = "EXTRACT(EPOCH FROM clock_timestamp())::DOUBLE PRECISION";
 pub struct PgJournal {
     config: postgres::Config,
     client: Option<Client>,
+    /// a connection being made on a thread of its own, and since when
+    connecting: Option<(Receiver<Result<Client, postgres::Error>>, Instant)>,
     store: String,
     root: PathBuf,
 }
+
+/// Longest wait for a new connection's handshake. The client's `connect_timeout` bounds
+/// the TCP connect only: a server (or a port forward) that accepts and never answers
+/// would hold the caller for ever.
+pub const HANDSHAKE_LIMIT: Duration = Duration::from_secs(10);
 
 /// Runs blocking database work from inside the daemon's runtime as well as outside it
 /// (the sync client runs a small runtime of its own, which may not start on a runtime
@@ -91,6 +99,7 @@ impl PgJournal {
         Ok(PgJournal {
             config,
             client: None,
+            connecting: None,
             store,
             root: root.to_path_buf(),
         })
@@ -108,7 +117,7 @@ impl PgJournal {
     fn client(&mut self) -> Result<&mut Client, JournalError> {
         if self.client.as_ref().is_none_or(|c| c.is_closed()) {
             self.client = None;
-            let mut c = self.config.connect(NoTls).map_err(|e| self.err(e))?;
+            let mut c = self.connection()?;
             super::migrations::runner()
                 .run(&mut c)
                 .map_err(|e| self.err(format!("migrating the schema: {e}")))?;
@@ -117,6 +126,41 @@ impl PgJournal {
             self.client = Some(c);
         }
         Ok(self.client.as_mut().expect("connected above"))
+    }
+
+    /// A new connection, made on a thread of its own and waited for at most
+    /// [`HANDSHAKE_LIMIT`]. A server that accepts and never answers costs that one thread
+    /// (it ends when the server closes the socket), never the caller: while it waits,
+    /// later calls fail at once, saying since when, instead of starting another.
+    fn connection(&mut self) -> Result<Client, JournalError> {
+        let (rx, since) = self.connecting.get_or_insert_with(|| {
+            let (tx, rx) = std::sync::mpsc::channel();
+            let config = self.config.clone();
+            std::thread::spawn(move || {
+                let _ = tx.send(config.connect(NoTls));
+            });
+            (rx, Instant::now())
+        });
+        let since = *since;
+        let left = HANDSHAKE_LIMIT.saturating_sub(since.elapsed());
+        match rx.recv_timeout(left) {
+            Ok(r) => {
+                self.connecting = None;
+                r.map_err(|e| self.err(e))
+            }
+            Err(RecvTimeoutError::Timeout) => {
+                let e = self.err(format!(
+                    "the server accepted the connection but has not answered its handshake for {:.0} s",
+                    since.elapsed().as_secs_f64()
+                ));
+                tracing::warn!("{e}");
+                Err(e)
+            }
+            Err(RecvTimeoutError::Disconnected) => {
+                self.connecting = None;
+                Err(self.err("the connecting thread ended without a word"))
+            }
+        }
     }
 
     /// One call on the connection; a connection found broken is dropped, to be made
