@@ -263,14 +263,22 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
         } => {
             let mut station =
                 conformd::stereo::rig::Reconstruction::load(&rig, calibration.as_deref())?;
-            let (scan, r) =
-                jobs::reconstruct_scan(&mut station, &capture, &out, report.as_deref(), mesh)?;
+            let truth = truth.as_deref().map(|file| jobs::ScanTruth {
+                file,
+                scale: truth_scale,
+                pod: truth_pod.as_deref(),
+            });
+            let (r, score) = jobs::reconstruct_scored(
+                &mut station,
+                &capture,
+                &out,
+                report.as_deref(),
+                mesh,
+                truth,
+            )?;
             println!("{r}\nwrote {}", out.display());
-            if let Some(t) = truth {
-                println!(
-                    "{}",
-                    jobs::score_scan(&scan, &station, truth_pod.as_deref(), &t, truth_scale)?
-                );
+            if let Some(score) = score {
+                println!("{score}");
             }
         }
         Cmd::ImportPair {

@@ -1575,6 +1575,34 @@ fn results_are_written_whole_served_without_links_and_not_changed_from_other_sit
             "{headers:?}: {got} {body}"
         );
     }
+    // a landmarks file that is a pipe: the refit fails naming it, it does not run without
+    let landmarks = d.join("data/landmarks");
+    std::fs::create_dir_all(&landmarks).unwrap();
+    let fifo = landmarks.join("h0.txt");
+    assert!(
+        Command::new("mkfifo")
+            .arg(&fifo)
+            .status()
+            .unwrap()
+            .success()
+    );
+    let (code, body) = request(
+        "POST",
+        &daemon.url("/api/captures/h0/reprocess"),
+        None,
+        None,
+    );
+    assert_eq!(code, 202, "{body}");
+    daemon.wait_for(Duration::from_secs(120), "the refit of h0 to fail", |d| {
+        let v: serde_json::Value =
+            serde_json::from_str(&d.get("/api/captures/h0").1).unwrap_or_default();
+        v["state"] == "failed"
+            && v["error"]
+                .as_str()
+                .is_some_and(|e| e.contains("h0.txt") && e.contains("named pipe"))
+    });
+    std::fs::remove_file(&fifo).unwrap();
+
     // bodies that are not the object asked for
     for (body, words) in [
         (&br#"["accepted"]"#[..], "an array"),

@@ -210,6 +210,21 @@ fn bad_definitions_are_refused_naming_the_measurement() {
         "[[measurement]]\nname = \"a b\"\nkind = \"area\"\n",
         "a name must be letters",
     );
+    // lengths that are 0 on every mesh, and a file that defines nothing
+    refuse(
+        "[[measurement]]\nname = \"len\"\nkind = \"distance\"\nfrom = \"withers\"\nto = \"withers\"\n",
+        "measurement 'len': points 1 and 2 are the same place",
+    );
+    refuse(
+        "[[measurement]]\nname = \"back\"\nkind = \"path\"\npoints = [\"withers\", 5, 5]\n",
+        "points 2 and 3 are the same place",
+    );
+    refuse(
+        "[[measurement]]\nname = \"s\"\nkind = \"surface\"\nfrom = 7\nto = 7\n",
+        "from and to are the same place",
+    );
+    refuse("", "defines no measurement");
+    refuse("[frame]\nfloor = 0.0\n", "defines no measurement");
     // an open template encloses no volume
     let mut open = pig.mesh.clone();
     open.triangles.truncate(open.triangles.len() - 10);

@@ -803,6 +803,30 @@ fn a_recorded_pair_replays_through_reconstruct_and_is_scored_in_depth() {
         text.contains("depth error mean") && text.contains("coverage"),
         "{text}"
     );
+    // a truth that cannot be used is refused before the scan is written
+    std::fs::write(d.path().join("bad-truth.png"), b"not a png").unwrap();
+    let out = bin()
+        .arg("reconstruct")
+        .arg(set)
+        .arg("--rig")
+        .arg(d.path().join("replay/rig.toml"))
+        .arg("--calibration")
+        .arg(d.path().join("replay/calibration"))
+        .arg("--out")
+        .arg(d.path().join("refused.ply"))
+        .arg("--truth")
+        .arg(d.path().join("bad-truth.png"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && err.contains("bad-truth.png"),
+        "{err}"
+    );
+    assert!(
+        !d.path().join("refused.ply").exists(),
+        "the scan was written before the truth was refused"
+    );
     // the same through the library, with the figures asserted
     let mut station = conformd::stereo::rig::Reconstruction::load(
         &d.path().join("replay/rig.toml"),

@@ -52,7 +52,9 @@ pub async fn run_child(spec: &JobSpec, job: &Job, abort: &tokio::sync::Notify) -
         .arg("--json")
         .arg("--stage");
     let landmarks = spec.landmarks.join(format!("{}.txt", job.id));
-    if landmarks.is_file() {
+    // anything of that name counts, a pipe, a folder or a link too: the job's reader
+    // refuses it naming why, rather than a refit running without the operator's points
+    if std::fs::symlink_metadata(&landmarks).is_ok() {
         cmd.arg("--landmarks").arg(&landmarks);
     }
     cmd.arg("--parent")

@@ -409,16 +409,66 @@ pub fn reconstruct_scan(
     report_path: Option<&Path>,
     as_mesh: bool,
 ) -> Result<(mesh::Mesh, crate::stereo::reconstruct::ReconstructReport), JobError> {
+    let (scan, report) = reconstruct_in_memory(station, capture, as_mesh)?;
+    write_scan(out, report_path, &scan, &report)?;
+    Ok((scan, report))
+}
+
+/// A ground truth for `reconstruct --truth`: the disparity file, its scale and the pod
+/// whose left image it belongs to (None: the rig's first).
+pub struct ScanTruth<'a> {
+    pub file: &'a Path,
+    pub scale: Option<f64>,
+    pub pod: Option<&'a str>,
+}
+
+/// `reconstruct`, scored against a truth when one is given: the scan is scored before
+/// it is written, so a truth that cannot be read or used leaves no scan behind.
+pub fn reconstruct_scored(
+    station: &mut Reconstruction,
+    capture: &Path,
+    out: &Path,
+    report_path: Option<&Path>,
+    as_mesh: bool,
+    truth: Option<ScanTruth>,
+) -> Result<
+    (
+        crate::stereo::reconstruct::ReconstructReport,
+        Option<crate::stereo::truth::DepthScore>,
+    ),
+    JobError,
+> {
+    let (scan, report) = reconstruct_in_memory(station, capture, as_mesh)?;
+    let score = truth
+        .map(|t| score_scan(&scan, station, t.pod, t.file, t.scale))
+        .transpose()?;
+    write_scan(out, report_path, &scan, &report)?;
+    Ok((report, score))
+}
+
+fn reconstruct_in_memory(
+    station: &mut Reconstruction,
+    capture: &Path,
+    as_mesh: bool,
+) -> Result<(mesh::Mesh, crate::stereo::reconstruct::ReconstructReport), JobError> {
     let set = CaptureSetDir::open(capture)?;
     let images = crate::station::pipeline::read_pod_images(&set, &station.pods)?;
-    let (scan, report) = station
+    station
         .run(&images.pixels, as_mesh)
-        .map_err(|e| JobError::Reconstruct(format!("{e}; images: {}", images.named(e.pod()))))?;
-    mesh::write_mesh(out, &scan)?;
+        .map_err(|e| JobError::Reconstruct(format!("{e}; images: {}", images.named(e.pod()))))
+}
+
+fn write_scan(
+    out: &Path,
+    report_path: Option<&Path>,
+    scan: &mesh::Mesh,
+    report: &crate::stereo::reconstruct::ReconstructReport,
+) -> Result<(), JobError> {
+    mesh::write_mesh(out, scan)?;
     if let Some(p) = report_path {
-        write_report(p, &report)?;
+        write_report(p, report)?;
     }
-    Ok((scan, report))
+    Ok(())
 }
 
 /// Reconstructs a capture set into a scan in the rig frame: every pod of the rig file
@@ -618,6 +668,15 @@ pub fn import_pair(
         None => 128,
     });
     let (w, h) = l.dimensions();
+    if let Some((cw, ch)) = cal.size
+        && (cw, ch) != (w, h)
+    {
+        return Err(JobError::Usage(format!(
+            "{}: the calibration is for {cw}x{ch} images, {} is {w}x{h}",
+            calib.display(),
+            left.display()
+        )));
+    }
     // the truth is kept under one name whatever it was called, its type kept
     let truth_file = truth.map(|t| {
         let ext = t.extension().and_then(|e| e.to_str()).unwrap_or("png");

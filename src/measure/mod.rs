@@ -152,6 +152,12 @@ impl Definitions {
                 message: format!("floor must be a finite number, got {}", self.frame.floor),
             });
         }
+        if self.measurements.is_empty() {
+            return Err(MeasureError::File {
+                path: "[[measurement]]".into(),
+                message: "the file defines no measurement (each is a [[measurement]] table with a name and a kind)".into(),
+            });
+        }
         let mut seen = std::collections::BTreeSet::new();
         let mut out = Vec::new();
         let watertight = topology::report(template).watertight;
@@ -236,6 +242,25 @@ impl Definitions {
                 && axis[0] == axis[1]
             {
                 return Err(err("the axis' two points are the same vertex".into()));
+            }
+            // a length between one place and itself is 0 on every mesh: a mistake
+            match &kind {
+                Resolved1::Path(points) => {
+                    if let Some(k) = points.windows(2).position(|w| w[0] == w[1]) {
+                        return Err(err(format!(
+                            "points {} and {} are the same place: the length would be 0 on every mesh",
+                            k + 1,
+                            k + 2
+                        )));
+                    }
+                }
+                Resolved1::Surface(a, b) if a == b => {
+                    return Err(err(
+                        "from and to are the same place: the length would be 0 on every mesh"
+                            .into(),
+                    ));
+                }
+                _ => {}
             }
             out.push((d.name.clone(), d.kind.clone(), kind));
         }

@@ -19,12 +19,34 @@ pub struct RecordedCalibration {
     /// metres
     pub baseline: f64,
     pub ndisp: Option<u32>,
+    /// the image size the file states (Middlebury's `width=` and `height=`), to be
+    /// checked against the images
+    pub size: Option<(u32, u32)>,
 }
 
 /// Reads a Middlebury 2014 `calib.txt` (`cam0=[f 0 cx; 0 f cy; 0 0 1]`, `cam1=`,
 /// `baseline=` in mm, `ndisp=`) or a KITTI one (`P0:` and `P1:`, 3x4 projections of the
 /// rectified grey cameras, `P1`'s fourth entry `-f B` in metres).
 pub fn parse_calibration(text: &str) -> Result<RecordedCalibration, String> {
+    // a key given twice has two values, and which one counts would be a guess
+    let mut seen = std::collections::BTreeMap::new();
+    for (n, l) in text.lines().enumerate() {
+        let Some(k) = l
+            .split(['=', ':'])
+            .next()
+            .map(str::trim)
+            .filter(|_| l.contains(['=', ':']))
+        else {
+            continue;
+        };
+        if let Some(first) = seen.insert(k.to_string(), n + 1) {
+            return Err(format!(
+                "'{}' is given twice (lines {first} and {})",
+                k.escape_default(),
+                n + 1
+            ));
+        }
+    }
     let value = |key: &str, sep: char| -> Option<&str> {
         text.lines().find_map(|l| {
             let (k, v) = l.split_once(sep)?;
@@ -49,13 +71,28 @@ pub fn parse_calibration(text: &str) -> Result<RecordedCalibration, String> {
         }
         let b = value("baseline", '=').ok_or("no baseline= (mm)")?;
         let b = numbers(b, "baseline")?;
-        let ndisp = match value("ndisp", '=') {
-            Some(v) => Some(
-                v.parse::<u32>()
-                    .map_err(|_| format!("ndisp: '{v}' is not a count"))?,
-            ),
-            None => None,
+        let count = |key: &str| -> Result<Option<u32>, String> {
+            value(key, '=')
+                .map(|v| {
+                    v.parse::<u32>()
+                        .map_err(|_| format!("{key}: '{v}' is not a count"))
+                })
+                .transpose()
         };
+        let ndisp = count("ndisp")?;
+        let size = match (count("width")?, count("height")?) {
+            (Some(w), Some(h)) => Some((w, h)),
+            (None, None) => None,
+            _ => return Err("width= and height= come together".into()),
+        };
+        // doffs is cam1's cx less cam0's: a file where they disagree is not one pair's
+        if let Some(d) = value("doffs", '=') {
+            let d = numbers(d, "doffs")?;
+            let want = k1[2] - k0[2];
+            if d.len() != 1 || (d[0] - want).abs() > 0.5 + 1e-3 * want.abs() {
+                return Err(format!("doffs {d:?} is not cam1's cx less cam0's ({want})"));
+            }
+        }
         RecordedCalibration {
             focal: k0[0],
             cx_left: k0[2],
@@ -63,6 +100,7 @@ pub fn parse_calibration(text: &str) -> Result<RecordedCalibration, String> {
             cy: k0[5],
             baseline: b.first().copied().unwrap_or(f64::NAN) / 1000.0,
             ndisp,
+            size,
         }
     } else if let (Some(p0), Some(p1)) = (value("P0", ':'), value("P1", ':')) {
         let (p0, p1) = (numbers(p0, "P0")?, numbers(p1, "P1")?);
@@ -76,6 +114,7 @@ pub fn parse_calibration(text: &str) -> Result<RecordedCalibration, String> {
             cy: p0[6],
             baseline: -p1[3] / p1[0],
             ndisp: None,
+            size: None,
         }
     } else {
         return Err(
@@ -187,6 +226,31 @@ mod tests {
                 .contains("'x'")
         );
         assert!(parse_calibration("hello").unwrap_err().contains("neither"));
+        assert_eq!(m.size, Some((2964, 1988)));
+        // careless files: a key twice, doffs that is not the cx difference or not a
+        // number, half a size
+        let mb = |extra: &str| {
+            parse_calibration(&format!(
+                "cam0=[3997.684 0 1176.728; 0 3997.684 1011.728; 0 0 1]\ncam1=[3997.684 0 1307.839; 0 3997.684 1011.728; 0 0 1]\nbaseline=193.001\n{extra}"
+            ))
+        };
+        assert!(mb("doffs=131.111\n").is_ok());
+        let e = mb("baseline=19.3\n").unwrap_err();
+        assert!(
+            e.contains("'baseline' is given twice (lines 3 and 4)"),
+            "{e}"
+        );
+        assert!(
+            mb("doffs=inf\n")
+                .unwrap_err()
+                .contains("'inf' is not a number")
+        );
+        assert!(
+            mb("doffs=12\n")
+                .unwrap_err()
+                .contains("cam1's cx less cam0's")
+        );
+        assert!(mb("width=100\n").unwrap_err().contains("come together"));
         assert!(
             parse_calibration("P0: 1 0 0 0 0 1 0 0 0 0 1 0\nP1: 1 0 0 5 0 1 0 0 0 0 1 0")
                 .unwrap_err()

@@ -233,8 +233,12 @@ impl Reconstruction {
                 path: f.display().to_string(),
                 msg,
             };
-            if !f.is_file() {
-                return Err(refuse(format!("no calibration for pod {}", pod.id)));
+            match std::fs::metadata(&f) {
+                Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+                    return Err(refuse(format!("no calibration for pod {}", pod.id)));
+                }
+                // what else stands there is named by the reader (a pipe, a folder, ...)
+                _ => {}
             }
             let (cal, origin) = crate::stereo::calibrate::read_yaml(
                 &f,
