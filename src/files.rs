@@ -69,20 +69,26 @@ pub const MAX_REPORT_BYTES: u64 = 64 << 20;
 /// checked on the path first (opening a FIFO would block until a writer came), then again
 /// on the opened file (the path may have been swapped between the two).
 pub fn read_limited(path: &Path, max: u64) -> Result<Vec<u8>, FileError> {
-    use std::io::Read;
     let name = path.display().to_string();
     let meta = std::fs::metadata(path).map_err(|e| FileError::io(&name, e))?;
     check_regular(&name, &meta, max)?;
     let f = std::fs::File::open(path).map_err(|e| FileError::io(&name, e))?;
-    let meta = f.metadata().map_err(|e| FileError::io(&name, e))?;
-    check_regular(&name, &meta, max)?;
+    read_opened(f, &name, max)
+}
+
+/// Reads an opened file, checked again as opened (the path may have been swapped), of
+/// at most `max` bytes; `name` names it.
+fn read_opened(f: std::fs::File, name: &str, max: u64) -> Result<Vec<u8>, FileError> {
+    use std::io::Read;
+    let meta = f.metadata().map_err(|e| FileError::io(name, e))?;
+    check_regular(name, &meta, max)?;
     let mut bytes = Vec::with_capacity(meta.len() as usize);
     f.take(max + 1)
         .read_to_end(&mut bytes)
-        .map_err(|e| FileError::io(&name, e))?;
+        .map_err(|e| FileError::io(name, e))?;
     if bytes.len() as u64 > max {
         return Err(content_err(
-            &name,
+            name,
             format!("grew past {max} bytes while read"),
         ));
     }
@@ -332,7 +338,6 @@ impl DataDir {
     /// Reads the regular file `name` of at most `max` bytes (a link, a pipe or a folder
     /// refused, naming it).
     pub fn read(&self, name: &str, max: u64) -> Result<Vec<u8>, FileError> {
-        use std::io::Read;
         let shown = self.path.join(name).display().to_string();
         let fd = rfs::openat(
             &self.fd,
@@ -352,20 +357,7 @@ impl DataDir {
                 e,
             )
         })?;
-        let f = std::fs::File::from(fd);
-        let meta = f.metadata().map_err(|e| FileError::io(&shown, e))?;
-        check_regular(&shown, &meta, max)?;
-        let mut bytes = Vec::with_capacity(meta.len() as usize);
-        f.take(max + 1)
-            .read_to_end(&mut bytes)
-            .map_err(|e| FileError::io(&shown, e))?;
-        if bytes.len() as u64 > max {
-            return Err(content_err(
-                &shown,
-                format!("grew past {max} bytes while read"),
-            ));
-        }
-        Ok(bytes)
+        read_opened(std::fs::File::from(fd), &shown, max)
     }
 
     /// Whether `name` is there (a link counts as there: it is not followed).

@@ -303,8 +303,14 @@ fn calibration_images_without_a_board_are_refused_quickly() {
     assert!(!d.join("pod.yml").exists());
 }
 
-#[test]
-fn a_calibration_with_a_zero_focal_length_is_blamed_on_the_file() {
+/// The example rig's file, the rig, a temporary folder and its `calibration/` holding
+/// every pod's calibration as the rig file gives it.
+fn example_calibrations() -> (
+    std::path::PathBuf,
+    conformd::stereo::rig::RigFile,
+    tempfile::TempDir,
+    std::path::PathBuf,
+) {
     let rig_path = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/rig.example.toml");
     let rig = conformd::stereo::rig::RigFile::load(&rig_path).unwrap();
     let dir = tempfile::tempdir().unwrap();
@@ -317,6 +323,12 @@ fn a_calibration_with_a_zero_focal_length_is_blamed_on_the_file() {
         )
         .unwrap();
     }
+    (rig_path, rig, dir, calib)
+}
+
+#[test]
+fn a_calibration_with_a_zero_focal_length_is_blamed_on_the_file() {
+    let (rig_path, rig, dir, calib) = example_calibrations();
     let first = &rig.pods()[0].id;
     let file = calib.join(format!("{first}.yml"));
     let text = std::fs::read_to_string(&file).unwrap();
@@ -358,18 +370,7 @@ fn a_calibration_with_a_zero_focal_length_is_blamed_on_the_file() {
 /// the file and the line.
 #[test]
 fn a_calibration_nested_too_deep_for_the_parser_is_refused_before_it() {
-    let rig_path = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/rig.example.toml");
-    let rig = conformd::stereo::rig::RigFile::load(&rig_path).unwrap();
-    let dir = tempfile::tempdir().unwrap();
-    let calib = dir.path().join("calibration");
-    std::fs::create_dir(&calib).unwrap();
-    for pod in rig.pods() {
-        std::fs::write(
-            calib.join(format!("{}.yml", pod.id)),
-            pod.opencv_yaml_of(Some(&rig.name)),
-        )
-        .unwrap();
-    }
+    let (rig_path, rig, dir, calib) = example_calibrations();
     let second = &rig.pods()[1].id;
     let file = calib.join(format!("{second}.yml"));
     let good = std::fs::read_to_string(&file).unwrap();

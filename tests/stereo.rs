@@ -786,36 +786,28 @@ fn a_recorded_pair_replays_through_reconstruct_and_is_scored_in_depth() {
         assert!(set.join(f).is_file(), "{f} missing from {}", set.display());
     }
     // the command the import prints, run as an operator would
-    let text = conformd(
-        bin()
-            .arg("reconstruct")
+    let reconstruct = |out: &str, truth: &Path| {
+        let mut c = bin();
+        c.arg("reconstruct")
             .arg(set)
             .arg("--rig")
             .arg(d.path().join("replay/rig.toml"))
             .arg("--calibration")
             .arg(d.path().join("replay/calibration"))
             .arg("--out")
-            .arg(d.path().join("scan.ply"))
+            .arg(d.path().join(out))
             .arg("--truth")
-            .arg(set.join("truth.png")),
-    );
+            .arg(truth);
+        c
+    };
+    let text = conformd(&mut reconstruct("scan.ply", &set.join("truth.png")));
     assert!(
         text.contains("depth error mean") && text.contains("coverage"),
         "{text}"
     );
     // a truth that cannot be used is refused before the scan is written
     std::fs::write(d.path().join("bad-truth.png"), b"not a png").unwrap();
-    let out = bin()
-        .arg("reconstruct")
-        .arg(set)
-        .arg("--rig")
-        .arg(d.path().join("replay/rig.toml"))
-        .arg("--calibration")
-        .arg(d.path().join("replay/calibration"))
-        .arg("--out")
-        .arg(d.path().join("refused.ply"))
-        .arg("--truth")
-        .arg(d.path().join("bad-truth.png"))
+    let out = reconstruct("refused.ply", &d.path().join("bad-truth.png"))
         .output()
         .unwrap();
     let err = String::from_utf8_lossy(&out.stderr);

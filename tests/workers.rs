@@ -308,6 +308,15 @@ fn drop_fake_set(incoming: &Path, id: &str) {
     std::fs::rename(&tmp, incoming.join(id)).unwrap();
 }
 
+/// A port on 127.0.0.1 nothing listens on now.
+fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
 fn status(port: u16) -> Option<serde_json::Value> {
     let body = ureq::get(&format!("http://127.0.0.1:{port}/api/status"))
         .call()
@@ -323,11 +332,7 @@ fn a_station_that_loses_its_database_keeps_its_captures_and_hands_them_over_once
     let pg = TempPostgres::start().unwrap();
     let url = pg.database("station").unwrap();
     let dir = tempfile::tempdir().unwrap();
-    let port = std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port();
+    let port = free_port();
     let rig = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/rig.example.toml");
     let extra = format!(
         "[rig]\nfile = \"{}\"\n[daemon]\nlisten = \"127.0.0.1:{port}\"\nworkers = 2\nrescan_s = 0.5\n",
@@ -527,11 +532,7 @@ fn a_journal_server_that_never_answers_hangs_neither_the_worker_nor_the_daemon()
     assert!(t.elapsed().as_secs_f64() < limit * 3.0);
 
     let dir = tempfile::tempdir().unwrap();
-    let port = std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port();
+    let port = free_port();
     let rig = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/rig.example.toml");
     let extra = format!(
         "[rig]\nfile = \"{}\"\n[daemon]\nlisten = \"127.0.0.1:{port}\"\nworkers = 1\n",
