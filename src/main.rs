@@ -435,6 +435,7 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
             model,
             normalise_posture,
             csv,
+            repeatability,
         } => {
             let mut source =
                 TemplateSource::named(&template, template_groups).map_err(jobs::JobError::Usage)?;
@@ -446,16 +447,20 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
             }
             let resolved = jobs::resolve_measurements(&source, definitions.as_deref())?;
             let posture = normalise_posture
-                .then(|| jobs::posture_removal(&source, model.as_deref()))
+                .then(|| jobs::posture_removal(&source, model.as_deref(), &resolved))
                 .transpose()?;
             let reports = meshes
                 .iter()
                 .map(|m| jobs::measure(m, &resolved, posture.as_ref()))
                 .collect::<Result<Vec<_>, _>>()?;
-            println!(
-                "{}",
-                serde_json::to_string_pretty(&reports).expect("serialises")
-            );
+            if repeatability {
+                print!("{}", jobs::repeatability(&reports)?);
+            } else {
+                println!(
+                    "{}",
+                    serde_json::to_string_pretty(&reports).expect("serialises")
+                );
+            }
             if let Some(p) = csv {
                 conformd::files::write_atomic(&p, jobs::measurements_csv(&reports).as_bytes())?;
                 eprintln!("wrote {}", p.display());

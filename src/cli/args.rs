@@ -338,6 +338,11 @@ pub enum Cmd {
         /// write a CSV too: a row per mesh, a column per measurement
         #[arg(long)]
         csv: Option<PathBuf>,
+        /// the meshes are one subject's in several postures: print each measurement's
+        /// mean, SD and coefficient of variation over them (raw, and posture-free with
+        /// --normalise-posture) instead of the per-mesh JSON
+        #[arg(long)]
+        repeatability: bool,
     },
     /// All results as CSV (a row per capture: subject, fit figures, measurements raw
     /// and posture-free, weight), to standard output or --out; results an operator

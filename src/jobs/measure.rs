@@ -9,16 +9,17 @@ use crate::model::{Align, BuildOptions, ShapeModel};
 use crate::template::{self, Kind, TemplateSource};
 
 /// For `measure --normalise-posture`: the model when one is given, else the generic
-/// template's skeleton.
+/// template's parts.
 pub fn posture_removal(
     source: &TemplateSource,
     model: Option<&Path>,
+    resolved: &Resolved,
 ) -> Result<PostureRemoval, JobError> {
     match (model, source.generic) {
         (Some(p), _) => Ok(PostureRemoval::Model(Box::new(ShapeModel::load(p)?))),
-        (None, Some(kind)) => Ok(PostureRemoval::Skeleton(
-            Box::new(template::build(kind, source.vertices.unwrap_or(10_000))),
-            kind,
+        (None, Some(kind)) => Ok(PostureRemoval::for_figure(
+            &template::build(kind, source.vertices.unwrap_or(10_000)),
+            resolved,
         )),
         (None, None) => Err(JobError::Usage(
             "--normalise-posture with a template mesh needs --model (a model with posture modes: `model build --posture`)"
@@ -35,6 +36,70 @@ pub struct MeasureReport {
     pub measurements: Vec<Measurement>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub normalised: Option<Vec<Measurement>>,
+}
+
+/// How well each measurement repeats over several meshes of one subject (issue 22):
+/// mean, SD and CV raw, and posture-free when the meshes were measured so too.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct Repeatability {
+    pub meshes: usize,
+    pub raw: Vec<crate::measure::Spread>,
+    pub posture_free: Option<Vec<crate::measure::Spread>>,
+}
+
+/// [`Repeatability`] of `reports` (one subject's meshes); at least two are needed.
+pub fn repeatability(reports: &[MeasureReport]) -> Result<Repeatability, JobError> {
+    if reports.len() < 2 {
+        return Err(JobError::Usage(format!(
+            "--repeatability needs two meshes or more of one subject ({} given)",
+            reports.len()
+        )));
+    }
+    let raw: Vec<Vec<Measurement>> = reports.iter().map(|r| r.measurements.clone()).collect();
+    let free: Option<Vec<Vec<Measurement>>> =
+        reports.iter().map(|r| r.normalised.clone()).collect();
+    Ok(Repeatability {
+        meshes: reports.len(),
+        raw: crate::measure::spread(&raw),
+        posture_free: free.map(|f| crate::measure::spread(&f)),
+    })
+}
+
+impl std::fmt::Display for Repeatability {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        writeln!(
+            f,
+            "over {} meshes: mean, SD and coefficient of variation (CV){}",
+            self.meshes,
+            if self.posture_free.is_some() {
+                ", raw | posture-free"
+            } else {
+                ""
+            }
+        )?;
+        for (i, r) in self.raw.iter().enumerate() {
+            write!(
+                f,
+                "{:<20} {:>10.4} {:>9.4} {:>6.2}% {:<4}",
+                r.name,
+                r.mean,
+                r.sd,
+                100.0 * r.cv,
+                r.unit
+            )?;
+            if let Some(p) = self.posture_free.as_ref().and_then(|p| p.get(i)) {
+                write!(
+                    f,
+                    " | {:>10.4} {:>9.4} {:>6.2}%",
+                    p.mean,
+                    p.sd,
+                    100.0 * p.cv
+                )?;
+            }
+            writeln!(f)?;
+        }
+        Ok(())
+    }
 }
 
 /// The definitions a template is measured by: `definitions` when given, else the
@@ -86,12 +151,8 @@ pub fn measure_mesh(
     let measurements = resolved.measure(m).map_err(bad)?;
     let normalised = match posture {
         Some(p) => Some(
-            resolved
-                .measure(
-                    &p.apply(name, m)
-                        .map_err(|e| JobError::Usage(format!("{name}: {e}")))?,
-                )
-                .map_err(bad)?,
+            p.measure(resolved, name, m)
+                .map_err(|e| JobError::Usage(format!("{name}: {e}")))?,
         ),
         None => None,
     };

@@ -8,6 +8,7 @@ use crate::mesh::{Landmark, LandmarkPos, Mesh, V3, topology};
 use std::collections::BTreeMap;
 use std::path::Path;
 
+pub mod posture;
 pub mod weight;
 
 /// What went wrong with a definition file or a measurement, naming the measurement.
@@ -46,13 +47,21 @@ pub enum Kind {
     Surface { from: Point, to: Point },
     /// tape-measure perimeter (the convex hull, as a tape lies) of the mesh's section by
     /// the plane through `at` square to the line `axis`; of the section's piece nearest
-    /// `at` (a leg cut by the same plane does not count)
-    Girth { at: Point, axis: [Point; 2] },
+    /// `at` (a leg cut by the same plane does not count); with `group`, cut from that
+    /// vertex group's triangles only (an arm lying against the chest does not count)
+    Girth {
+        at: Point,
+        axis: [Point; 2],
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        group: Option<String>,
+    },
     /// extent, along the line `across`, of the same section piece as a girth
     Width {
         at: Point,
         axis: [Point; 2],
         across: [Point; 2],
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        group: Option<String>,
     },
     /// height of a point above the floor (see `Frame`)
     Height { point: Point },
@@ -189,45 +198,33 @@ impl Definitions {
                     Resolved1::Path(points.iter().map(&at).collect::<Result<_, _>>()?)
                 }
                 Kind::Surface { from, to } => Resolved1::Surface(at(from)?, at(to)?),
-                Kind::Girth { at: p, axis } => Resolved1::Section {
+                Kind::Girth { at: p, axis, group } => Resolved1::Section {
                     at: at(p)?,
                     axis: [at(&axis[0])?, at(&axis[1])?],
                     across: None,
+                    only: group_triangles(template, group.as_deref()).map_err(&err)?,
                 },
                 Kind::Width {
                     at: p,
                     axis,
                     across,
+                    group,
                 } => Resolved1::Section {
                     at: at(p)?,
                     axis: [at(&axis[0])?, at(&axis[1])?],
                     across: Some([at(&across[0])?, at(&across[1])?]),
+                    only: group_triangles(template, group.as_deref()).map_err(&err)?,
                 },
                 Kind::Height { point } => Resolved1::Height(at(point)?),
-                Kind::Area { group } => Resolved1::Area(match group {
-                    None => None,
-                    Some(g) => {
-                        let members = template.groups.get(g).ok_or_else(|| {
-                            err(format!(
-                                "group '{g}' is not one of the template's ({})",
-                                template.group_names()
-                            ))
-                        })?;
-                        let mut inside = vec![false; template.vertices.len()];
-                        for &v in members {
-                            inside[v as usize] = true;
-                        }
-                        Some(
-                            template
-                                .triangles
-                                .iter()
-                                .enumerate()
-                                .filter(|(_, t)| t.iter().all(|&v| inside[v as usize]))
-                                .map(|(i, _)| i as u32)
-                                .collect(),
-                        )
-                    }
-                }),
+                Kind::Area { group } => Resolved1::Area(
+                    group_triangles(template, group.as_deref())
+                        .map_err(&err)?
+                        .map(|(_, inside)| {
+                            (0..inside.len() as u32)
+                                .filter(|&t| inside[t as usize])
+                                .collect()
+                        }),
+                ),
                 Kind::Volume => {
                     if !watertight {
                         return Err(err(
@@ -276,6 +273,36 @@ impl Definitions {
 
 /// A point fixed on the template: the vertices whose centroid it is.
 type Fixed = Vec<u32>;
+
+/// The triangles of vertex group `group` (all three corners in it), as a mask over the
+/// template's triangles, with the group's name; `None` without a group.
+fn group_triangles(
+    template: &Mesh,
+    group: Option<&str>,
+) -> Result<Option<(String, Vec<bool>)>, String> {
+    let Some(g) = group else { return Ok(None) };
+    let members = template.groups.get(g).ok_or_else(|| {
+        format!(
+            "group '{g}' is not one of the template's ({})",
+            template.group_names()
+        )
+    })?;
+    let mut inside = vec![false; template.vertices.len()];
+    for &v in members {
+        if let Some(x) = inside.get_mut(v as usize) {
+            *x = true;
+        }
+    }
+    let mask: Vec<bool> = template
+        .triangles
+        .iter()
+        .map(|t| t.iter().all(|&v| inside[v as usize]))
+        .collect();
+    if !mask.iter().any(|&m| m) {
+        return Err(format!("group '{g}' has no triangle of the template"));
+    }
+    Ok(Some((g.to_string(), mask)))
+}
 
 fn resolve_point(p: &Point, template: &Mesh, landmarks: &[Landmark]) -> Result<Fixed, String> {
     let n = template.vertices.len();
@@ -340,6 +367,8 @@ enum Resolved1 {
         at: Fixed,
         axis: [Fixed; 2],
         across: Option<[Fixed; 2]>,
+        /// the group the section is cut from, and its triangles
+        only: Option<(String, Vec<bool>)>,
     },
     Height(Fixed),
     Area(Option<Vec<u32>>),
@@ -363,6 +392,10 @@ pub struct Measurement {
     pub kind: String,
     pub value: f64,
     pub unit: String,
+    /// what the reader should know about how it was taken (a section that had to be cut
+    /// away from another body part)
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub warning: Option<String>,
 }
 
 impl Resolved {
@@ -382,6 +415,30 @@ impl Resolved {
     /// Every measurement on `mesh` with the lines it was taken along, for a viewer to
     /// draw where it was taken.
     pub fn measure_drawn(&self, mesh: &Mesh) -> Result<Vec<Drawn>, MeasureError> {
+        self.measure_in(mesh, None)
+    }
+
+    /// Every measurement on `mesh` with each definition moved into the posture `posed`
+    /// (fitted to this mesh): sections cut where the parts carry their planes, lengths
+    /// and heights with the joints' rotations taken out; areas, volumes and surface
+    /// paths as they are (a posture does not change them).
+    pub fn measure_posed(
+        &self,
+        mesh: &Mesh,
+        posed: &posture::Posed,
+    ) -> Result<Vec<Measurement>, MeasureError> {
+        Ok(self
+            .measure_in(mesh, Some(posed))?
+            .into_iter()
+            .map(|d| d.measurement)
+            .collect())
+    }
+
+    fn measure_in(
+        &self,
+        mesh: &Mesh,
+        posed: Option<&posture::Posed>,
+    ) -> Result<Vec<Drawn>, MeasureError> {
         if mesh.vertices.len() != self.vertices {
             return Err(MeasureError::VertexCount {
                 got: mesh.vertices.len(),
@@ -389,16 +446,25 @@ impl Resolved {
             });
         }
         let v = &mesh.vertices;
-        let place = |f: &Fixed| f.iter().map(|&i| v[i as usize]).sum::<V3>() / f.len() as f64;
+        let mean = |f: &Fixed, at: &dyn Fn(u32) -> V3| {
+            f.iter().map(|&i| at(i)).sum::<V3>() / f.len() as f64
+        };
+        let place = |f: &Fixed| mean(f, &|i| v[i as usize]);
+        // lengths and heights: with a posture, the joints' rotations taken out
+        let length_place = |f: &Fixed| match posed {
+            Some(p) => mean(f, &|i| p.normalised(i)),
+            None => place(f),
+        };
         let mut out = Vec::with_capacity(self.items.len());
         for (name, kind, r) in &self.items {
             let err = |message: String| MeasureError::Definition {
                 name: name.clone(),
                 message,
             };
+            let mut warning = None;
             let (value, power, lines, closed) = match r {
                 Resolved1::Path(ps) => {
-                    let line: Vec<V3> = ps.iter().map(&place).collect();
+                    let line: Vec<V3> = ps.iter().map(length_place).collect();
                     let length = line.windows(2).map(|w| (w[1] - w[0]).norm()).sum();
                     (length, 1, vec![line], false)
                 }
@@ -406,12 +472,34 @@ impl Resolved {
                     let (length, line) = edge_path(mesh, a[0], b[0]);
                     (length, 1, vec![line], false)
                 }
-                Resolved1::Section { at, axis, across } => {
-                    let p = place(at);
-                    let normal = (place(&axis[1]) - place(&axis[0]))
+                Resolved1::Section {
+                    at,
+                    axis,
+                    across,
+                    only,
+                } => {
+                    let (p, normal, side) = match posed {
+                        None => (
+                            place(at),
+                            place(&axis[1]) - place(&axis[0]),
+                            across.as_ref().map(|[a, b]| place(b) - place(a)),
+                        ),
+                        // the plane where the parts at `at` carry the template's
+                        Some(ps) => {
+                            let rest = |f: &Fixed| mean(f, &|i| ps.rest(i));
+                            let turned = |d: V3| mean(at, &|i| ps.turned(i, &d));
+                            (
+                                mean(at, &|i| ps.carried(i)),
+                                turned(rest(&axis[1]) - rest(&axis[0])),
+                                across.as_ref().map(|[a, b]| turned(rest(b) - rest(a))),
+                            )
+                        }
+                    };
+                    let normal = normal
                         .try_normalize(0.0)
                         .ok_or_else(|| err("the axis has no length on this mesh".into()))?;
-                    let piece = section_piece(mesh, &p, &normal)
+                    let mask = only.as_ref().map(|(_, m)| &m[..]);
+                    let (piece, whole) = section_pieces(mesh, &p, &normal, mask)
                         .ok_or_else(|| err("the plane does not cut the mesh".into()))?;
                     // a plane through the mesh's extreme vertex touches it at one point:
                     // no section to measure, not a girth of 0
@@ -425,39 +513,44 @@ impl Resolved {
                             piece[0].x, piece[0].y, piece[0].z
                         )));
                     }
-                    match across {
-                        None => {
-                            let hull = hull_loop(&piece, &normal);
-                            (loop_length(&hull), 1, vec![hull], true)
-                        }
-                        Some([a, b]) => {
-                            let d = place(b) - place(a);
-                            let side = d - normal * normal.dot(&d);
+                    let across_dir = match side {
+                        None => None,
+                        Some(d) => {
+                            let s = d - normal * normal.dot(&d);
                             // within ~6 degrees of the axis the direction across is noise
-                            if !(side.norm() > 0.1 * d.norm()) {
+                            if !(s.norm() > 0.1 * d.norm()) {
                                 return Err(err(
                                     "the width's direction (across) lies along the axis on this mesh; it must cross the section".into(),
                                 ));
                             }
-                            let d = side.normalize();
-                            let lo = piece
-                                .iter()
-                                .min_by(|a, b| a.dot(&d).total_cmp(&b.dot(&d)))
-                                .expect("a section has points");
-                            let hi = piece
-                                .iter()
-                                .map(|q| q.dot(&d))
-                                .fold(f64::NEG_INFINITY, f64::max);
-                            let width = hi - lo.dot(&d);
-                            (width, 1, vec![vec![*lo, lo + d * width]], false)
+                            Some(s.normalize())
+                        }
+                    };
+                    let (value, line, closed) = section_value(&piece, &normal, across_dir);
+                    if let (Some(whole), Some((group, _))) = (whole, only) {
+                        let with = section_value(&whole, &normal, across_dir).0;
+                        if (with - value).abs() > 0.01 * value {
+                            warning = Some(format!(
+                                "cut from the '{group}' group only: other parts touching the section (left out) would make it {with:.4} {}",
+                                self.unit
+                            ));
                         }
                     }
+                    (value, 1, vec![line], closed)
                 }
-                Resolved1::Height(p) => {
-                    let top = place(p);
-                    let height = top.dot(&self.up) - self.floor;
-                    (height, 1, vec![vec![top, top - self.up * height]], false)
-                }
+                Resolved1::Height(f) => match posed {
+                    None => {
+                        let top = place(f);
+                        let height = top.dot(&self.up) - self.floor;
+                        (height, 1, vec![vec![top, top - self.up * height]], false)
+                    }
+                    // on the subject's own lowest point, its joints straightened
+                    Some(ps) => {
+                        let top = length_place(f);
+                        let height = top.dot(&ps.up) - ps.floor;
+                        (height, 1, vec![vec![top, top - ps.up * height]], false)
+                    }
+                },
                 Resolved1::Area(tris) => (
                     match tris {
                         None => mesh.area(),
@@ -484,12 +577,37 @@ impl Resolved {
                         1 => self.unit.clone(),
                         p => format!("{}^{p}", self.unit),
                     },
+                    warning,
                 },
                 lines,
                 closed,
             });
         }
         Ok(out)
+    }
+}
+
+/// A section piece's girth (its hull's perimeter, `across` `None`) or width along
+/// `across`, with the line to draw and whether it is a loop.
+fn section_value(piece: &[V3], normal: &V3, across: Option<V3>) -> (f64, Vec<V3>, bool) {
+    match across {
+        None => {
+            let hull = hull_loop(piece, normal);
+            (loop_length(&hull), hull, true)
+        }
+        Some(d) => {
+            let lo = piece
+                .iter()
+                .min_by(|a, b| a.dot(&d).total_cmp(&b.dot(&d)))
+                .copied()
+                .unwrap_or_default();
+            let hi = piece
+                .iter()
+                .map(|q| q.dot(&d))
+                .fold(f64::NEG_INFINITY, f64::max);
+            let width = hi - lo.dot(&d);
+            (width, vec![lo, lo + d * width], false)
+        }
     }
 }
 
@@ -556,11 +674,25 @@ fn edge_path(m: &Mesh, a: u32, b: u32) -> (f64, Vec<V3>) {
 /// The points of the mesh's section by the plane through `p` with unit normal `n`, of
 /// the connected piece of the section nearest `p`. `None` when the plane misses.
 pub fn section_piece(m: &Mesh, p: &V3, n: &V3) -> Option<Vec<V3>> {
+    section_pieces(m, p, n, None).map(|(piece, _)| piece)
+}
+
+/// As [`section_piece`]; with `only` (a mask over the triangles), the piece is cut from
+/// those triangles alone: the points they give in the connected piece nearest `p` (so
+/// an arm joined to the chest's loop is left out, and the loop stays whole where another
+/// group's triangles break it), and that whole piece comes second when it is bigger.
+fn section_pieces(
+    m: &Mesh,
+    p: &V3,
+    n: &V3,
+    only: Option<&[bool]>,
+) -> Option<(Vec<V3>, Option<Vec<V3>>)> {
     let d: Vec<f64> = m.vertices.iter().map(|v| (v - p).dot(n)).collect();
     // each cut edge gives one point; a triangle cut by the plane joins two of them
     let mut point_of: BTreeMap<(u32, u32), usize> = BTreeMap::new();
     let mut points: Vec<V3> = Vec::new();
-    let mut links: Vec<(usize, usize)> = Vec::new();
+    // (a, b, of a triangle in `only`)
+    let mut links: Vec<(usize, usize, bool)> = Vec::new();
     let mut cut = |a: u32, b: u32, points: &mut Vec<V3>| -> usize {
         let key = (a.min(b), a.max(b));
         *point_of.entry(key).or_insert_with(|| {
@@ -570,7 +702,7 @@ pub fn section_piece(m: &Mesh, p: &V3, n: &V3) -> Option<Vec<V3>> {
             points.len() - 1
         })
     };
-    for t in &m.triangles {
+    for (ti, t) in m.triangles.iter().enumerate() {
         let mut ends = Vec::with_capacity(2);
         for k in 0..3 {
             let (a, b) = (t[k], t[(k + 1) % 3]);
@@ -581,14 +713,13 @@ pub fn section_piece(m: &Mesh, p: &V3, n: &V3) -> Option<Vec<V3>> {
             }
         }
         if ends.len() == 2 {
-            links.push((ends[0], ends[1]));
+            let inside = only.is_none_or(|o| o.get(ti).copied().unwrap_or(false));
+            links.push((ends[0], ends[1], inside));
         }
     }
     if points.is_empty() {
         return None;
     }
-    // pieces of the section: components over the links
-    let mut parent: Vec<usize> = (0..points.len()).collect();
     fn find(p: &mut [usize], mut x: usize) -> usize {
         while p[x] != x {
             p[x] = p[p[x]];
@@ -596,21 +727,33 @@ pub fn section_piece(m: &Mesh, p: &V3, n: &V3) -> Option<Vec<V3>> {
         }
         x
     }
-    for (a, b) in links {
+    // pieces of the section: components over the links; the chosen triangles' points
+    let mut parent: Vec<usize> = (0..points.len()).collect();
+    let mut chosen = vec![only.is_none(); points.len()];
+    for &(a, b, inside) in &links {
+        if inside {
+            chosen[a] = true;
+            chosen[b] = true;
+        }
         let (ra, rb) = (find(&mut parent, a), find(&mut parent, b));
         if ra != rb {
             parent[ra] = rb;
         }
     }
     let nearest = (0..points.len())
+        .filter(|&i| chosen[i])
         .min_by(|&a, &b| (points[a] - p).norm().total_cmp(&(points[b] - p).norm()))?;
     let root = find(&mut parent, nearest);
-    Some(
-        (0..points.len())
-            .filter(|&i| find(&mut parent, i) == root)
-            .map(|i| points[i])
-            .collect(),
-    )
+    let whole: Vec<usize> = (0..points.len())
+        .filter(|&i| find(&mut parent, i) == root)
+        .collect();
+    let piece: Vec<V3> = whole
+        .iter()
+        .filter(|&&i| chosen[i])
+        .map(|&i| points[i])
+        .collect();
+    let whole = (whole.len() > piece.len()).then(|| whole.iter().map(|&i| points[i]).collect());
+    Some((piece, whole))
 }
 
 /// Perimeter of the convex hull of points lying in a plane with unit normal `n`.
@@ -666,16 +809,30 @@ pub fn hull_loop(points: &[V3], n: &V3) -> Vec<V3> {
     hull.into_iter().map(to_space).collect()
 }
 
-/// How a result's posture is taken out before it is measured again.
+/// How a result's posture is taken out of its measurements.
 pub enum PostureRemoval {
-    /// a generic template's own skeleton: its pose parameters fitted and undone
+    /// a generic template's parts fitted to the result, each definition moved into the
+    /// subject's posture (see [`posture`]); the mesh is not deformed
+    Parts(Box<posture::Articulation>),
+    /// a generic template's own skeleton: its pose parameters fitted and undone by
+    /// its skinning, then measured
     Skeleton(Box<crate::template::figure::Figure>, crate::template::Kind),
     /// the posture modes of a model (`model posture`, `model build --posture`)
     Model(Box<crate::model::ShapeModel>),
 }
 
 impl PostureRemoval {
-    /// `m` with its posture removed (same vertex order, its shape and size kept).
+    /// The station's and the CLI's way for a generic template: by its parts, which
+    /// repeat best over postures (`cargo bench --bench repeatability`).
+    pub fn for_figure(fig: &crate::template::figure::Figure, resolved: &Resolved) -> Self {
+        PostureRemoval::Parts(Box::new(posture::Articulation::from_figure(
+            fig,
+            resolved.up,
+        )))
+    }
+
+    /// `m` with its posture removed (same vertex order, its shape and size kept); the
+    /// parts method measures without deforming and has no such mesh.
     pub fn apply(&self, name: &str, m: &Mesh) -> Result<Mesh, String> {
         match self {
             PostureRemoval::Model(model) => {
@@ -684,6 +841,27 @@ impl PostureRemoval {
             PostureRemoval::Skeleton(fig, kind) => {
                 crate::template::remove_posture(fig, *kind, m).map(|(m, _)| m)
             }
+            PostureRemoval::Parts(_) => {
+                Err("the parts method moves the definitions, not the mesh: use measure".into())
+            }
+        }
+    }
+
+    /// `resolved`'s measurements of `m` with its posture taken out.
+    pub fn measure(
+        &self,
+        resolved: &Resolved,
+        name: &str,
+        m: &Mesh,
+    ) -> Result<Vec<Measurement>, String> {
+        match self {
+            PostureRemoval::Parts(art) => {
+                let posed = art.fit(m)?;
+                resolved.measure_posed(m, &posed).map_err(|e| e.to_string())
+            }
+            _ => resolved
+                .measure(&self.apply(name, m)?)
+                .map_err(|e| e.to_string()),
         }
     }
 }
@@ -695,4 +873,55 @@ pub fn to_csv(ms: &[Measurement]) -> String {
         s += &format!("{},{},{},{}\n", m.name, m.kind, m.value, m.unit);
     }
     s
+}
+
+/// One measurement over several results of one subject: how well it repeats.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Spread {
+    pub name: String,
+    pub unit: String,
+    /// how many results had it
+    pub count: usize,
+    pub mean: f64,
+    /// sample standard deviation (n - 1)
+    pub sd: f64,
+    /// coefficient of variation, sd / |mean|
+    pub cv: f64,
+}
+
+/// Each measurement's mean, SD and CV over `results` (each one result's measurements; a
+/// measurement missing from a result is left out of its figures).
+pub fn spread(results: &[Vec<Measurement>]) -> Vec<Spread> {
+    let mut names: Vec<(String, String)> = Vec::new();
+    for r in results {
+        for m in r {
+            if !names.iter().any(|(n, _)| n == &m.name) {
+                names.push((m.name.clone(), m.unit.clone()));
+            }
+        }
+    }
+    names
+        .into_iter()
+        .map(|(name, unit)| {
+            let v: Vec<f64> = results
+                .iter()
+                .filter_map(|r| r.iter().find(|m| m.name == name).map(|m| m.value))
+                .collect();
+            let n = v.len();
+            let mean = v.iter().sum::<f64>() / n.max(1) as f64;
+            let sd = if n > 1 {
+                (v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1) as f64).sqrt()
+            } else {
+                0.0
+            };
+            Spread {
+                name,
+                unit,
+                count: n,
+                mean,
+                sd,
+                cv: if mean != 0.0 { sd / mean.abs() } else { 0.0 },
+            }
+        })
+        .collect()
 }

@@ -469,7 +469,7 @@ impl Measuring {
         let posture = match (&m.posture_model, figure, m.normalise_posture) {
             (_, _, false) => None,
             (Some(p), _, true) => Some(PostureRemoval::Model(Box::new(ShapeModel::load(p)?))),
-            (None, Some((kind, fig)), true) => Some(PostureRemoval::Skeleton(Box::new(fig), kind)),
+            (None, Some((_, fig)), true) => Some(PostureRemoval::for_figure(&fig, &resolved)),
             (None, None, true) => None,
         };
         let weight = m
@@ -501,10 +501,7 @@ impl Measuring {
             }
         };
         if let Some(p) = &self.posture {
-            match p
-                .apply(id, mesh)
-                .and_then(|n| self.resolved.measure(&n).map_err(|e| e.to_string()))
-            {
+            match p.measure(&self.resolved, id, mesh) {
                 Ok(n) => out.normalised = Some(n),
                 Err(e) => out.error = Some(format!("posture not removed: {e}")),
             }

@@ -6,6 +6,7 @@
 pub mod cases;
 pub mod devset;
 pub mod posing;
+pub mod repeat;
 pub mod rig;
 pub mod scanner;
 pub mod semantic;

@@ -95,7 +95,7 @@ impl SemanticCase {
 
 /// The way a subject faces in its rest pose, level (z up): from its heels to its toes
 /// (a person's head may lean back), else from its centre to its snout.
-fn rest_front(subject: &Mesh, marks: &[(String, u32)]) -> Option<V3> {
+pub(crate) fn rest_front(subject: &Mesh, marks: &[(String, u32)]) -> Option<V3> {
     let at = |prefix: &str| -> Option<V3> {
         let p: Vec<V3> = marks
             .iter()

@@ -1,0 +1,200 @@
+//! Repeatability cases (issue 22): one subject scanned in many postures, the generic
+//! template conformed onto every scan. What the station promises is that the subject's
+//! measurements do not depend on how it stood; these cases show whether they do. The
+//! subjects: a generic template of another shape and triangulation (the template's own
+//! family), and outside animals and people (`tests/data/meshes`) posed by `posing`, each
+//! scanned from four sides and above (occlusion holes, noise).
+
+use super::devset::{self, Part};
+use super::posing::{self, PoseSettings};
+use crate::mesh::landmarks::{Landmark, LandmarkPos};
+use crate::mesh::{Mesh, V3, topology};
+use crate::template::{self, Kind, figure::Figure};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use std::collections::BTreeMap;
+
+/// One posture of a subject as the station sees it.
+pub struct Posture {
+    pub scan: Mesh,
+    /// the template's landmarks that are marked on the subject, and where they truly are
+    /// in this posture (for the runs with landmarks)
+    pub template_landmarks: Vec<Landmark>,
+    pub scan_landmarks: Vec<Landmark>,
+    /// the way the subject faces (level)
+    pub front: V3,
+}
+
+pub struct Subject {
+    pub name: String,
+    pub part: Part,
+    pub kind: Kind,
+    /// the generic template conformed onto every posture
+    pub template: Figure,
+    pub postures: Vec<Posture>,
+}
+
+/// The template's landmark vertices by name.
+fn named_vertices(fig: &Figure) -> BTreeMap<String, u32> {
+    fig.landmarks()
+        .into_iter()
+        .filter_map(|l| match l.pos {
+            LandmarkPos::Vertex(v) => Some((l.name, v)),
+            LandmarkPos::Point(_) => None,
+        })
+        .collect()
+}
+
+/// Landmark pairs: `marks` (name, subject vertex) that the template also has.
+fn landmark_pairs(
+    template: &BTreeMap<String, u32>,
+    marks: &[(String, u32)],
+    posed: &[V3],
+) -> (Vec<Landmark>, Vec<Landmark>) {
+    marks
+        .iter()
+        .filter_map(|(name, v)| {
+            let t = template.get(name)?;
+            let p = posed.get(*v as usize)?;
+            Some((
+                Landmark {
+                    name: name.clone(),
+                    pos: LandmarkPos::Vertex(*t),
+                },
+                Landmark {
+                    name: name.clone(),
+                    pos: LandmarkPos::Point(*p),
+                },
+            ))
+        })
+        .unzip()
+}
+
+fn turned(x: &mut [V3], degrees: f64) {
+    let c = x.iter().sum::<V3>() / x.len().max(1) as f64;
+    let rot = nalgebra::Rotation3::from_axis_angle(&V3::z_axis(), degrees.to_radians());
+    for p in x {
+        *p = c + rot * (*p - c);
+    }
+}
+
+/// The subjects of a part, each in `count` postures. Development: the generic pig and
+/// body of other proportions (and another triangulation), the koala and the man;
+/// validation (never tuned on): the cow and the woman.
+pub fn subjects(part: Part, count: usize, names: &[&str]) -> Result<Vec<Subject>, String> {
+    let list: &[(&str, Kind)] = match part {
+        Part::Development => &[
+            ("generic pig", Kind::Pig),
+            ("koala", Kind::Pig),
+            ("generic body", Kind::Body),
+            ("human", Kind::Body),
+        ],
+        Part::Validation => &[("cow", Kind::Pig), ("woman", Kind::Body)],
+    };
+    let mut out = Vec::new();
+    for (k, &(name, kind)) in list.iter().enumerate() {
+        if !names.is_empty() && !names.iter().any(|n| name.contains(n)) {
+            continue;
+        }
+        let fig = template::build(kind, 10_000);
+        let named = named_vertices(&fig);
+        let seed = 500 + 100 * k as u64 + if part == Part::Validation { 50 } else { 0 };
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let mut postures = Vec::new();
+        if name.starts_with("generic ") {
+            // another individual of the template's family: other proportions, another
+            // triangulation
+            let other = template::build(kind, 8_000);
+            let shape: BTreeMap<String, f64> = match kind {
+                Kind::Pig => [
+                    ("length", 1.12),
+                    ("girth", 1.15),
+                    ("leg_length", 0.9),
+                    ("head_size", 1.1),
+                ],
+                Kind::Body => [
+                    ("height", 0.95),
+                    ("girth", 1.18),
+                    ("arm_length", 1.05),
+                    ("shoulders", 1.1),
+                ],
+            }
+            .iter()
+            .map(|(n, f)| (n.to_string(), *f))
+            .collect();
+            let marks: Vec<(String, u32)> = named_vertices(&other).into_iter().collect();
+            for (i, pose) in template::random_postures(kind, count, 20.0, seed)
+                .iter()
+                .enumerate()
+            {
+                let mut subject = template::subject(&other, kind, &shape, pose)?;
+                let heading = rng.random_range(-15.0..15.0);
+                turned(&mut subject.vertices, heading);
+                postures.push(scanned(
+                    &subject,
+                    &named,
+                    &marks,
+                    V3::new(heading.to_radians().cos(), heading.to_radians().sin(), 0.0),
+                    seed + i as u64,
+                ));
+            }
+        } else {
+            let subject = devset::load(name)?;
+            let marks = super::semantic::marks_of(name)?;
+            let rest_front = super::semantic::rest_front(&subject, &marks)
+                .ok_or_else(|| format!("{name}: no marks that say which way it faces"))?;
+            let nb = topology::vertex_neighbours(subject.vertices.len(), &subject.triangles);
+            let ext = posing::extremities(&subject, &nb, 8);
+            for i in 0..count {
+                // limbs and the whole moved as a subject moves in a crate or a booth; its
+                // size kept (the same subject)
+                let settings = PoseSettings {
+                    limbs: 8,
+                    limb_degrees: (5.0, 25.0),
+                    bend: 10.0,
+                    twist: 8.0,
+                    scale: 1.0,
+                    seed: seed + i as u64,
+                };
+                let mut x = posing::pose(&subject, &nb, &ext, &settings);
+                let heading = rng.random_range(-15.0..15.0);
+                turned(&mut x, heading);
+                let rot = nalgebra::Rotation3::from_axis_angle(&V3::z_axis(), heading.to_radians());
+                let posed = Mesh::new(x, subject.triangles.clone());
+                postures.push(scanned(
+                    &posed,
+                    &named,
+                    &marks,
+                    rot * rest_front,
+                    seed + i as u64,
+                ));
+            }
+        }
+        out.push(Subject {
+            name: name.to_string(),
+            part,
+            kind,
+            template: fig,
+            postures,
+        });
+    }
+    Ok(out)
+}
+
+fn scanned(
+    posed: &Mesh,
+    template: &BTreeMap<String, u32>,
+    marks: &[(String, u32)],
+    front: V3,
+    seed: u64,
+) -> Posture {
+    let (scan, _) =
+        super::cases::scan_subject(posed, &[0.0, 90.0, 180.0, 270.0], 60_000, 0.002, seed);
+    let (template_landmarks, scan_landmarks) = landmark_pairs(template, marks, &posed.vertices);
+    Posture {
+        scan,
+        template_landmarks,
+        scan_landmarks,
+        front,
+    }
+}
