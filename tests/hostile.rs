@@ -407,6 +407,27 @@ fn a_calibration_nested_too_deep_for_the_parser_is_refused_before_it() {
             &[&format!("{second}.yml"), "nests deeper"],
         );
     }
+    // what OpenCV's parser says of a file, in an operator's words, not its source lines
+    for (text, words) in [
+        ("%YAML:1.0\n---\nM1: [1, 2\n", "at line 3"),
+        (
+            "%YAML:1.0\n---\nM1: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [ 1, 2 ]\n",
+            "does not hold rows x cols values",
+        ),
+    ] {
+        std::fs::write(&file, text).unwrap();
+        let err = match conformd::stereo::rig::Reconstruction::load(&rig_path, Some(&calib)) {
+            Err(e) => e.to_string(),
+            Ok(_) => panic!("{text}: accepted"),
+        };
+        assert!(
+            err.contains(&format!("{second}.yml"))
+                && err.contains(words)
+                && !err.contains("OpenCV(")
+                && !err.contains(".cpp"),
+            "{err}"
+        );
+    }
     // the good file still reads (from memory, as checked)
     std::fs::write(&file, good).unwrap();
     conformd::stereo::rig::Reconstruction::load(&rig_path, Some(&calib)).unwrap();

@@ -329,6 +329,36 @@ pub struct CalibrationOrigin {
     pub image: Option<(u32, u32)>,
 }
 
+/// An OpenCV error about a file in an operator's words: its source path, line and
+/// assertion text left out, what it says of the file kept (`line 3: Missing , between
+/// the elements`; a matrix whose data does not fill its rows and columns named so).
+pub fn cv_words(e: &opencv::Error) -> String {
+    let m = e.message.trim();
+    if m.contains("nelems == m.total()*m.channels()") {
+        return "a matrix's data does not hold rows x cols values".into();
+    }
+    // "OpenCV(4.6.0) path:line: error: (-212:Parsing error) parseValue in function
+    // '(3): Missing , between the elements'"
+    let detail = m.split_once("error: (").map_or(m, |(_, rest)| rest);
+    let (kind, rest) = detail.split_once(')').map_or(("", detail), |(k, r)| {
+        (k.split_once(':').map_or(k, |x| x.1), r.trim())
+    });
+    let quoted = rest
+        .rsplit_once("in function '")
+        .map(|(_, q)| q.trim_end_matches('\''));
+    match quoted {
+        Some(q) if q.starts_with('(') => {
+            let (line, what) = q[1..].split_once("):").unwrap_or(("?", q));
+            format!("{} at line {line}:{what}", kind.to_lowercase())
+        }
+        _ => format!(
+            "{} ({})",
+            kind.to_lowercase(),
+            rest.split(" in function").next().unwrap_or(rest)
+        ),
+    }
+}
+
 /// Deepest nesting of a calibration file (brackets, or block indentation in steps of
 /// two): a calibration nests two levels; OpenCV's parser recurses once per level and a
 /// file of 100,000 brackets overflows its stack.
@@ -463,7 +493,12 @@ pub fn read_yaml(
         }
         Ok(Ok((pod, origin)))
     };
-    run().map_err(|e| format!("{name}: OpenCV: {e}"))?
+    run().map_err(|e| {
+        format!(
+            "{name}: not a calibration OpenCV can read: {}",
+            cv_words(&e)
+        )
+    })?
 }
 
 /// A calibration that cannot describe two cameras is refused where it is read, naming
