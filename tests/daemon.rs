@@ -1524,6 +1524,10 @@ fn results_are_written_whole_served_without_links_and_not_changed_from_other_sit
     let detail: serde_json::Value =
         serde_json::from_str(&daemon.get("/api/captures/h1").1).unwrap();
     assert!(detail["report"].is_null(), "the report read through a link");
+    // the result folder gone altogether: 404 saying so, not a 500
+    std::fs::remove_file(results.join("h1")).unwrap();
+    let (code, body) = daemon.get("/api/captures/h1/scan.ply");
+    assert!(code == 404 && body.contains("gone"), "{code} {body}");
 
     // requests a page of another site could make, and one from the station's own page
     let own = format!("http://127.0.0.1:{port}");

@@ -428,6 +428,20 @@ fn a_calibration_nested_too_deep_for_the_parser_is_refused_before_it() {
             "{err}"
         );
     }
+    // a pipe where the calibration should be: named as what it is, not as missing
+    std::fs::remove_file(&file).unwrap();
+    mkfifo(&file);
+    let err = match conformd::stereo::rig::Reconstruction::load(&rig_path, Some(&calib)) {
+        Err(e) => e.to_string(),
+        Ok(_) => panic!("a pipe was read as a calibration"),
+    };
+    assert!(
+        err.contains(&format!("{second}.yml"))
+            && err.contains("named pipe")
+            && !err.contains("no calibration"),
+        "{err}"
+    );
+    std::fs::remove_file(&file).unwrap();
     // the good file still reads (from memory, as checked)
     std::fs::write(&file, good).unwrap();
     conformd::stereo::rig::Reconstruction::load(&rig_path, Some(&calib)).unwrap();

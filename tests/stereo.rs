@@ -905,3 +905,42 @@ fn a_recorded_pair_replays_through_reconstruct_and_is_scored_in_depth() {
     assert!(e.contains("450 x 375") && e.contains("1241 x 376"), "{e}");
     assert!(!d.path().join("bad").exists());
 }
+
+/// A careless recorded calibration (issue 42's weak class): a stated image size that is
+/// not the images', a doffs of inf, a key given twice. `import-pair` refuses each naming
+/// the file and writes nothing.
+#[test]
+fn import_pair_refuses_a_calibration_that_does_not_fit_its_pair() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/stereo/kitti-000070");
+    let d = tempfile::tempdir().unwrap();
+    let cam = "cam0=[721.5 0 609.6; 0 721.5 172.9; 0 0 1]\ncam1=[721.5 0 609.6; 0 721.5 172.9; 0 0 1]\nbaseline=537.2\n";
+    for (extra, words) in [
+        (
+            "width=640\nheight=480\n",
+            "the calibration is for 640x480 images",
+        ),
+        ("doffs=inf\n", "'inf' is not a number"),
+        ("baseline=500\n", "'baseline' is given twice"),
+    ] {
+        std::fs::write(d.path().join("calib.txt"), format!("{cam}{extra}")).unwrap();
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_conformd"))
+            .arg("import-pair")
+            .arg(root.join("left.png"))
+            .arg(root.join("right.png"))
+            .arg("--calib")
+            .arg(d.path().join("calib.txt"))
+            .arg("--out")
+            .arg(d.path().join("replay"))
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            !out.status.success() && err.contains("calib.txt") && err.contains(words),
+            "{extra}: {err}"
+        );
+        assert!(
+            !d.path().join("replay").exists(),
+            "{extra}: something was written"
+        );
+    }
+}
