@@ -303,6 +303,34 @@ fn calibration_images_without_a_board_are_refused_quickly() {
     assert!(!d.join("pod.yml").exists());
 }
 
+/// Why the rig's calibrations in `calib` were refused (a panic naming `what` if they
+/// were not).
+fn calibration_refused(rig_path: &Path, calib: &Path, what: &str) -> String {
+    match conformd::stereo::rig::Reconstruction::load(rig_path, Some(calib)) {
+        Err(e) => e.to_string(),
+        Ok(_) => panic!("{what} was accepted"),
+    }
+}
+
+/// `reconstruct` with the rig's calibrations in `dir/calibration`, refused with `words`
+/// before any image is read.
+fn reconstruct_refused(dir: &Path, rig_path: &Path, words: &[&str]) {
+    refused(
+        dir,
+        &[
+            "reconstruct",
+            "no-such-set",
+            "--rig",
+            rig_path.to_str().unwrap(),
+            "--calibration",
+            "calibration",
+            "--out",
+            "scan.ply",
+        ],
+        words,
+    );
+}
+
 /// The example rig's file, the rig, a temporary folder and its `calibration/` holding
 /// every pod's calibration as the rig file gives it.
 fn example_calibrations() -> (
@@ -338,27 +366,15 @@ fn a_calibration_with_a_zero_focal_length_is_blamed_on_the_file() {
     let end = start + text[start..].find(',').unwrap();
     let broken = format!("{} 0.{}", &text[..start], &text[end..]);
     std::fs::write(&file, broken).unwrap();
-    let err = match conformd::stereo::rig::Reconstruction::load(&rig_path, Some(&calib)) {
-        Err(e) => e.to_string(),
-        Ok(_) => panic!("a zero focal length was accepted"),
-    };
+    let err = calibration_refused(&rig_path, &calib, "a zero focal length");
     assert!(
         err.contains(&format!("{first}.yml")) && err.contains("focal length must be positive"),
         "{err}"
     );
     // and through the command line, before any image is read
-    refused(
+    reconstruct_refused(
         dir.path(),
-        &[
-            "reconstruct",
-            "no-such-set",
-            "--rig",
-            rig_path.to_str().unwrap(),
-            "--calibration",
-            "calibration",
-            "--out",
-            "scan.ply",
-        ],
+        &rig_path,
         &[&format!("{first}.yml"), "focal length"],
     );
     assert!(!dir.path().join("scan.ply").exists());
@@ -384,26 +400,14 @@ fn a_calibration_nested_too_deep_for_the_parser_is_refused_before_it() {
         .collect();
     for (what, text) in [("a bracket", nested), ("indentation", indented)] {
         std::fs::write(&file, &text).unwrap();
-        let err = match conformd::stereo::rig::Reconstruction::load(&rig_path, Some(&calib)) {
-            Err(e) => e.to_string(),
-            Ok(_) => panic!("{what}: a nested calibration was accepted"),
-        };
+        let err = calibration_refused(&rig_path, &calib, what);
         assert!(
             err.contains(&format!("{second}.yml")) && err.contains(what) && err.contains("line"),
             "{err}"
         );
-        refused(
+        reconstruct_refused(
             dir.path(),
-            &[
-                "reconstruct",
-                "no-such-set",
-                "--rig",
-                rig_path.to_str().unwrap(),
-                "--calibration",
-                "calibration",
-                "--out",
-                "scan.ply",
-            ],
+            &rig_path,
             &[&format!("{second}.yml"), "nests deeper"],
         );
     }
@@ -416,10 +420,7 @@ fn a_calibration_nested_too_deep_for_the_parser_is_refused_before_it() {
         ),
     ] {
         std::fs::write(&file, text).unwrap();
-        let err = match conformd::stereo::rig::Reconstruction::load(&rig_path, Some(&calib)) {
-            Err(e) => e.to_string(),
-            Ok(_) => panic!("{text}: accepted"),
-        };
+        let err = calibration_refused(&rig_path, &calib, text);
         assert!(
             err.contains(&format!("{second}.yml"))
                 && err.contains(words)
@@ -431,10 +432,7 @@ fn a_calibration_nested_too_deep_for_the_parser_is_refused_before_it() {
     // a pipe where the calibration should be: named as what it is, not as missing
     std::fs::remove_file(&file).unwrap();
     mkfifo(&file);
-    let err = match conformd::stereo::rig::Reconstruction::load(&rig_path, Some(&calib)) {
-        Err(e) => e.to_string(),
-        Ok(_) => panic!("a pipe was read as a calibration"),
-    };
+    let err = calibration_refused(&rig_path, &calib, "a pipe");
     assert!(
         err.contains(&format!("{second}.yml"))
             && err.contains("named pipe")
