@@ -235,6 +235,22 @@ impl ConformOptions {
     }
 
     /// Checks every value before work starts.
+    /// Refuses a `stiffness` entry for a group `template` does not have (a misspelt
+    /// group would silently leave its springs as they are).
+    pub fn check_groups(&self, template: &Mesh) -> Result<(), String> {
+        match self
+            .stiffness
+            .keys()
+            .find(|g| !template.groups.contains_key(*g))
+        {
+            Some(g) => Err(format!(
+                "stiffness names group '{g}', which the template does not have (it has: {})",
+                template.group_names()
+            )),
+            None => Ok(()),
+        }
+    }
+
     pub fn validate(&self) -> Result<(), ConformError> {
         let bad = |m: String| Err(ConformError::Options(m));
         let positive = [
@@ -717,16 +733,7 @@ fn conform_on_pool(
             template.area()
         )));
     }
-    if let Some(g) = opts
-        .stiffness
-        .keys()
-        .find(|g| !template.groups.contains_key(*g))
-    {
-        return Err(ConformError::Options(format!(
-            "stiffness names group '{g}', which the template does not have (it has: {})",
-            template.group_names()
-        )));
-    }
+    opts.check_groups(template).map_err(ConformError::Options)?;
     // The scan's search structures and the decimated template (which keeps the landmark
     // vertices) are independent: built side by side.
     let ((surface, template_topology), paired) = rayon::join(

@@ -429,7 +429,7 @@ fn detail(shared: &Shared, id: &str) -> Api<CaptureDetail> {
     let review = result
         .as_ref()
         .and_then(|d| crate::station::review::read_in(d).ok().flatten());
-    let placed_landmarks = read_placed(&shared.cfg.station.landmarks(), id);
+    let placed_landmarks = read_placed(shared, id);
     Ok(CaptureDetail {
         job,
         manifest,
@@ -645,8 +645,16 @@ async fn review(
 
 /// The landmarks an operator placed for capture `id`, None when none were (or their file
 /// cannot be read: the job that reads it names why).
-fn read_placed(dir: &std::path::Path, id: &str) -> Option<Vec<PlacedLandmark>> {
-    let lms = crate::mesh::read_landmarks(&dir.join(format!("{id}.txt"))).ok()?;
+fn read_placed(shared: &Shared, id: &str) -> Option<Vec<PlacedLandmark>> {
+    // as every file served: inside the data folder, no link followed
+    let dir = data_dir(shared, &shared.cfg.station.landmarks()).ok()?;
+    let name = format!("{id}.txt");
+    let bytes = dir
+        .read(&name, crate::mesh::landmarks::MAX_LANDMARK_BYTES)
+        .ok()?;
+    let lms =
+        crate::mesh::landmarks::parse_text(&dir.path().join(&name).display().to_string(), &bytes)
+            .ok()?;
     Some(
         lms.into_iter()
             .filter_map(|l| match l.pos {

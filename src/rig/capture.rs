@@ -255,13 +255,16 @@ impl Session {
         let result = frames.and_then(|(frames, box_time)| {
             check_skew(&frames, self.options.max_skew_ms)?;
             // an id another writer took in the meantime: the same frames under a new one
-            for _ in 0..8 {
+            let mut retries = 0;
+            loop {
                 match self.write(&id, subject, started, &frames, box_time) {
-                    Err(CaptureError::IdTaken(_)) => id = self.next_id(),
+                    Err(CaptureError::IdTaken(_)) if retries < 8 => {
+                        retries += 1;
+                        id = self.next_id();
+                    }
                     r => return r,
                 }
             }
-            self.write(&id, subject, started, &frames, box_time)
         });
         match &result {
             // the partial folder of that id is the other writer's

@@ -321,6 +321,11 @@ impl FrameStream {
         if !self.armed {
             return Err(device("grab before arm".into()));
         }
+        let timeout = |stale| CameraError::Timeout {
+            camera: camera.clone(),
+            waited_ms: start.elapsed().as_millis() as u64,
+            stale,
+        };
         // drivers stamp in whole microseconds: a frame of the trigger's own microsecond is its
         let fired_at = Duration::from_micros(fired_at.as_micros() as u64);
         loop {
@@ -328,11 +333,7 @@ impl FrameStream {
             let (bytes, meta) = match self.queue.next(left.max(Duration::from_millis(1))) {
                 Ok(x) => x,
                 Err(e) if e.kind() == std::io::ErrorKind::TimedOut => {
-                    return Err(CameraError::Timeout {
-                        camera,
-                        waited_ms: start.elapsed().as_millis() as u64,
-                        stale: self.stale,
-                    });
+                    return Err(timeout(self.stale));
                 }
                 Err(e) => return Err(device(e.to_string())),
             };
@@ -347,11 +348,7 @@ impl FrameStream {
                 self.stale += 1;
                 self.expected = None;
                 if Instant::now() >= deadline {
-                    return Err(CameraError::Timeout {
-                        camera,
-                        waited_ms: start.elapsed().as_millis() as u64,
-                        stale: self.stale,
-                    });
+                    return Err(timeout(self.stale));
                 }
                 continue;
             }

@@ -545,20 +545,12 @@ impl Pipeline {
             None => source.load()?,
         };
         // each capture's fit would fail on it: said once, here, and by `check`
-        if let Some(g) = cfg
-            .conform
-            .stiffness
-            .keys()
-            .find(|g| !template.groups.contains_key(*g))
-        {
-            return Err(PipelineError::Conform {
+        cfg.conform
+            .check_groups(&template)
+            .map_err(|msg| PipelineError::Conform {
                 file: cfg.file.display().to_string(),
-                msg: format!(
-                    "stiffness names group '{g}', which the template does not have (it has: {})",
-                    template.group_names()
-                ),
-            });
-        }
+                msg,
+            })?;
         let measuring =
             Measuring::from_config(cfg, figure, &template, template_landmarks.as_deref())?;
         let reconstruction = Reconstruction::load(&rig.file, rig.calibration.as_deref())?;
@@ -655,11 +647,16 @@ impl Pipeline {
         let t = Instant::now();
         // an operator's landmarks pass the page's checks here too (points, on the scan,
         // finite, not in one plane), whether they came from the page or a file
-        let checked = match (scan_landmarks, self.template_landmarks.as_deref()) {
+        let bad =
+            |e: String| StageError::new(Stage::Conform, &id, ConformError::Landmarks(e).into());
+        let (checked, placed) = match (scan_landmarks, self.template_landmarks.as_deref()) {
+            (None, _) => (None, None),
+            (Some(_), None) => {
+                return Err(bad(
+                    "scan landmarks were given, but the station's template has none to pair them with ([template] landmarks)".into(),
+                ));
+            }
             (Some(s), Some(t)) => {
-                let bad = |e: String| {
-                    StageError::new(Stage::Conform, &id, ConformError::Landmarks(e).into())
-                };
                 let placed: Vec<PlacedLandmark> = crate::mesh::landmarks::scan_points(s)
                     .map_err(bad)?
                     .into_iter()
@@ -669,35 +666,14 @@ impl Pipeline {
                     })
                     .collect();
                 let names: Vec<String> = t.iter().map(|l| l.name.clone()).collect();
-                Some(super::placed::check(&placed, &names, &scan).map_err(bad)?)
-            }
-            _ => None,
-        };
-        let pairs = match (checked.as_deref(), self.template_landmarks.as_deref()) {
-            (Some(s), Some(t)) => Some((t, s)),
-            _ if scan_landmarks.is_none() => None,
-            _ => {
-                return Err(StageError::new(
-                    Stage::Conform,
-                    &id,
-                    ConformError::Landmarks(
-                        "scan landmarks were given, but the station's template has none to pair them with ([template] landmarks)".into(),
-                    )
-                    .into(),
-                ));
+                let checked = super::placed::check(&placed, &names, &scan).map_err(bad)?;
+                (Some(checked), Some(placed))
             }
         };
-        let placed = checked.as_ref().map(|l| {
-            l.iter()
-                .filter_map(|l| match l.pos {
-                    crate::mesh::LandmarkPos::Point(p) => Some(PlacedLandmark {
-                        name: l.name.clone(),
-                        position: [p.x, p.y, p.z],
-                    }),
-                    crate::mesh::LandmarkPos::Vertex(_) => None,
-                })
-                .collect()
-        });
+        let pairs = checked
+            .as_deref()
+            .zip(self.template_landmarks.as_deref())
+            .map(|(s, t)| (t, s));
         let never = AtomicBool::new(false);
         let cancel = control.cancel.unwrap_or(&never);
         let conformed = {
