@@ -168,6 +168,15 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
             let s = jobs::template(kind, vertices, &pose, &shape, &out)?;
             println!("{kind:?} template: {s}");
         }
+        Cmd::Autorig {
+            mesh,
+            limbs,
+            out,
+            preview,
+        } => {
+            let out = out.unwrap_or_else(|| mesh.with_extension("rig.json"));
+            println!("{}", jobs::autorig(&mesh, limbs, &out, preview.as_deref())?);
+        }
         Cmd::Render {
             mesh,
             colour_by,

@@ -796,3 +796,103 @@ fn cameras_lists_what_the_machine_has() {
         );
     }
 }
+
+#[test]
+fn template_and_autorig_write_rigs_that_a_station_reads() {
+    use conformd::template::rig::TemplateRig;
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let ok = |args: &[&str]| {
+        let out = conformd(args, d);
+        assert!(
+            out.status.success(),
+            "{args:?}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        String::from_utf8_lossy(&out.stdout).to_string()
+    };
+    // the generic template's rig beside it; none beside a posed one (a subject)
+    ok(&["template", "pig", "--vertices", "2000", "--out", "pig.obj"]);
+    let pig = conformd::mesh::read_mesh(&d.join("pig.obj")).unwrap();
+    let rig = TemplateRig::read(&d.join("pig.rig.json"), pig.vertices.len()).unwrap();
+    assert_eq!(rig.bones.len(), 20);
+    assert_eq!(rig.bones[rig.bone("leg_fl").unwrap()].limit_deg, 70.0);
+    assert_eq!(rig.shapes.len(), 4);
+    let said = ok(&[
+        "template",
+        "pig",
+        "--vertices",
+        "2000",
+        "--pose",
+        "swing=10",
+        "--out",
+        "posed.obj",
+    ]);
+    assert!(
+        !d.join("posed.rig.json").exists() && said.contains("no rig"),
+        "{said}"
+    );
+    // an automatic rig of a mesh, with its picture
+    let said = ok(&[
+        "autorig",
+        "pig.obj",
+        "--out",
+        "auto.rig.json",
+        "--preview",
+        "auto.png",
+    ]);
+    assert!(
+        said.contains("limb1_upper") && said.contains("wrote"),
+        "{said}"
+    );
+    let auto = TemplateRig::read(&d.join("auto.rig.json"), pig.vertices.len()).unwrap();
+    assert!(auto.bones.len() >= 9, "{:?}", auto.bones);
+    let png = image::open(d.join("auto.png")).unwrap();
+    assert_eq!((png.width(), png.height()), (1200, 400));
+    // a station reads the rig its [template] names; a bad one is refused by `check`
+    let check = |rig: &str| {
+        std::fs::write(
+            d.join("station.toml"),
+            format!("[template]\nmesh = \"pig.obj\"\nrig = \"{rig}\"\n"),
+        )
+        .unwrap();
+        let out = conformd(&["check", "station.toml"], d);
+        (
+            out.status.success(),
+            String::from_utf8_lossy(&out.stderr).to_string(),
+        )
+    };
+    let (passed, err) = check("auto.rig.json");
+    assert!(passed, "{err}");
+    let text = std::fs::read_to_string(d.join("auto.rig.json")).unwrap();
+    std::fs::write(d.join("cut.rig.json"), &text[..text.len() / 3]).unwrap();
+    let (passed, err) = check("cut.rig.json");
+    assert!(
+        !passed && err.contains("cut.rig.json") && err.contains("line 1"),
+        "{err}"
+    );
+    ok(&[
+        "template",
+        "pig",
+        "--vertices",
+        "3000",
+        "--out",
+        "other.obj",
+    ]);
+    let (passed, err) = check("other.rig.json");
+    assert!(
+        !passed && err.contains("other.rig.json") && err.contains("vertices"),
+        "{err}"
+    );
+    std::fs::write(
+        d.join("station.toml"),
+        "[template]\ngeneric = \"pig\"\nrig = \"auto.rig.json\"\n",
+    )
+    .unwrap();
+    let out = conformd(&["check", "station.toml"], d);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && err.contains("brings its own"),
+        "{err}"
+    );
+}

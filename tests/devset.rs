@@ -639,3 +639,58 @@ fn semantic_scoring_sees_a_swapped_limb() {
     );
     assert!(s.max > 0.05, "{}", s.max);
 }
+
+/// The automatic rig on outside meshes: every marked limb end (hand tip, toe, hoof) is
+/// moved most by the lower bone of a limb, ends of different limbs by different limbs,
+/// and turning every limb 30 degrees about its joints folds no triangle.
+#[test]
+fn the_automatic_rig_finds_the_limbs_of_outside_meshes() {
+    use conformd::template::rig::{AutoRigSettings, RigPose, TemplateRig, turn};
+    for (name, limb_ends) in [
+        ("human", vec!["hand_tip_l", "hand_tip_r", "toe_l", "toe_r"]),
+        ("cow", vec!["hoof_fl", "hoof_fr", "hoof_hl", "hoof_hr"]),
+        ("koala", vec!["hoof_fl", "hoof_fr", "hoof_hl", "hoof_hr"]),
+    ] {
+        let mesh = devset::load(name).unwrap();
+        let rig = TemplateRig::automatic(&mesh, &AutoRigSettings::default()).unwrap();
+        let marks = conformd::synth::semantic::marks_of(name).unwrap();
+        let owner = rig.dominant_bones();
+        let mut limbs_of_ends = Vec::new();
+        for end in &limb_ends {
+            let v = marks.iter().find(|m| &m.0 == end).unwrap().1;
+            let bone = &rig.bones[owner[v as usize] as usize].name;
+            assert!(
+                bone.ends_with("_lower"),
+                "{name}: {end} is moved most by {bone}"
+            );
+            limbs_of_ends.push(bone.clone());
+        }
+        limbs_of_ends.sort();
+        limbs_of_ends.dedup();
+        assert_eq!(
+            limbs_of_ends.len(),
+            limb_ends.len(),
+            "{name}: {limbs_of_ends:?}"
+        );
+        let mut pose = RigPose::rest(&rig);
+        for (b, bone) in rig.bones.iter().enumerate().skip(1) {
+            let along = bone.tail - bone.head;
+            let side = along.cross(&conformd::mesh::V3::new(0.3, 0.5, 0.8));
+            pose.turns[b] = turn(side, 30.0);
+        }
+        let posed = rig.pose(&mesh.vertices, &pose);
+        let folded = quality::flipped_against(&posed, &mesh.vertices, &mesh.triangles);
+        let moved = posed
+            .iter()
+            .zip(&mesh.vertices)
+            .filter(|(a, b)| (*a - *b).norm() > 1e-3 * mesh.diagonal())
+            .count();
+        println!(
+            "{name}: {} bones, {moved} of {} vertices moved, {folded} folded",
+            rig.bones.len(),
+            mesh.vertices.len()
+        );
+        assert!(moved * 10 > mesh.vertices.len(), "{name}: {moved} moved");
+        assert_eq!(folded, 0, "{name}");
+    }
+}

@@ -128,6 +128,22 @@ pub enum Cmd {
         #[arg(long)]
         out: PathBuf,
     },
+    /// Rig a template mesh automatically: limbs at its geodesic extremities, joints where
+    /// each meets the body and half-way down it, skin weights along the surface, a length
+    /// field per limb. The generic templates' rigs come from `template`.
+    Autorig {
+        /// the template mesh (.obj, .ply, .off)
+        mesh: PathBuf,
+        /// geodesic extremities tried as limbs
+        #[arg(long, default_value_t = 10)]
+        limbs: usize,
+        /// the rig file (default: beside the mesh as MESH.rig.json)
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// also a PNG of the mesh coloured by bone, from the front, side and top
+        #[arg(long)]
+        preview: Option<PathBuf>,
+    },
     /// Render a shaded preview PNG of a mesh.
     Render {
         mesh: PathBuf,

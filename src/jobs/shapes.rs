@@ -10,6 +10,9 @@ use std::path::{Path, PathBuf};
 pub struct TemplateSummary {
     pub mesh: PathBuf,
     pub landmarks: PathBuf,
+    /// written for the rest template only (a posed or reshaped one is a subject)
+    pub rig: Option<PathBuf>,
+    pub bones: usize,
     pub vertices: usize,
     pub triangles: usize,
     pub groups: Vec<(String, usize)>,
@@ -19,7 +22,8 @@ pub struct TemplateSummary {
 
 /// Writes a generic pig or body template of about `vertices` vertices, optionally posed
 /// (`swing=12,nod=-8`) and reshaped (`length=1.1`), and its landmark file beside it
-/// (`<out without extension>.landmarks`). The vertex order does not depend on pose or
+/// (`<out without extension>.landmarks`), and for the rest template its rig
+/// (`<out without extension>.rig.json`: bones, skin weights, shape fields). The vertex order does not depend on pose or
 /// shape, so subjects made this way are their own ground truth.
 pub fn template(
     kind: crate::template::Kind,
@@ -56,9 +60,19 @@ pub fn template(
     let landmarks = out.with_extension("landmarks");
     let lms = fig.landmarks();
     write_atomic(&landmarks, mesh::landmarks::landmarks_text(&lms).as_bytes())?;
+    // the rig describes the rest template: a posed or reshaped one is a subject (its own
+    // truth), and a rig beside it would put its joints where its limbs are not
+    let rig = templates::rig::TemplateRig::generic(&fig, kind);
+    let rig_path =
+        (pose_params.is_empty() && shape_params.is_empty()).then(|| out.with_extension("rig.json"));
+    if let Some(p) = &rig_path {
+        rig.write(p)?;
+    }
     Ok(TemplateSummary {
         mesh: out.to_path_buf(),
         landmarks,
+        rig: rig_path,
+        bones: rig.bones.len(),
         vertices: mesh.vertices.len(),
         triangles: mesh.triangles.len(),
         groups: mesh
@@ -264,10 +278,11 @@ impl std::fmt::Display for TemplateSummary {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
             f,
-            "{} vertices, {} triangles, {} landmarks, groups {}; watertight {}\nwrote {}\nwrote {}",
+            "{} vertices, {} triangles, {} landmarks, {} bones, groups {}; watertight {}\nwrote {}\nwrote {}{}",
             self.vertices,
             self.triangles,
             self.landmark_count,
+            self.bones,
             self.groups
                 .iter()
                 .map(|(g, n)| format!("{g} ({n})"))
@@ -275,7 +290,147 @@ impl std::fmt::Display for TemplateSummary {
                 .join(", "),
             self.watertight,
             self.mesh.display(),
-            self.landmarks.display()
+            self.landmarks.display(),
+            match &self.rig {
+                Some(p) => format!("\nwrote {}", p.display()),
+                None => "\nno rig: a posed or reshaped template is a subject".into(),
+            }
         )
+    }
+}
+
+/// One bone `autorig` made.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct AutorigBone {
+    pub name: String,
+    pub parent: Option<String>,
+    pub joint: [f64; 3],
+    pub limit_deg: f64,
+    /// vertices it moves most
+    pub vertices: usize,
+}
+
+/// What `autorig` found and wrote.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct AutorigSummary {
+    pub rig: PathBuf,
+    pub preview: Option<PathBuf>,
+    pub vertices: usize,
+    pub bones: Vec<AutorigBone>,
+    pub shapes: Vec<String>,
+}
+
+/// Rigs a template mesh automatically ([`crate::template::rig::TemplateRig::automatic`])
+/// and writes the rig file, and a picture of the mesh coloured by bone when asked.
+pub fn autorig(
+    mesh_path: &Path,
+    limbs: usize,
+    out: &Path,
+    preview: Option<&Path>,
+) -> Result<AutorigSummary, JobError> {
+    use crate::template::rig::{AutoRigSettings, TemplateRig};
+    if !(1..=32).contains(&limbs) {
+        return Err(JobError::Usage(format!(
+            "--limbs {limbs}: between 1 and 32 extremities are tried"
+        )));
+    }
+    let mesh = mesh::read_mesh(mesh_path)?;
+    let name = mesh_path.display().to_string();
+    mesh.validate(&name).map_err(JobError::Usage)?;
+    let settings = AutoRigSettings {
+        limbs,
+        ..Default::default()
+    };
+    let rig =
+        TemplateRig::automatic(&mesh, &settings).map_err(|e| mesh::FileError::content(&name, e))?;
+    rig.write(out)?;
+    let owner = rig.dominant_bones();
+    let mut moved = vec![0usize; rig.bones.len()];
+    for &b in &owner {
+        moved[b as usize] += 1;
+    }
+    if let Some(p) = preview {
+        rig_picture(&mesh, &rig, p)?;
+    }
+    Ok(AutorigSummary {
+        rig: out.to_path_buf(),
+        preview: preview.map(Path::to_path_buf),
+        vertices: mesh.vertices.len(),
+        bones: rig
+            .bones
+            .iter()
+            .zip(&moved)
+            .map(|(b, &n)| AutorigBone {
+                name: b.name.clone(),
+                parent: b.parent.map(|p| rig.bones[p].name.clone()),
+                joint: [b.head.x, b.head.y, b.head.z],
+                limit_deg: b.limit_deg,
+                vertices: n,
+            })
+            .collect(),
+        shapes: rig.shapes.iter().map(|s| s.name.clone()).collect(),
+    })
+}
+
+/// The mesh coloured by the bone that moves each vertex most, from three sides.
+fn rig_picture(
+    mesh: &mesh::Mesh,
+    rig: &crate::template::rig::TemplateRig,
+    out: &Path,
+) -> Result<(), JobError> {
+    use crate::render::{self, Colouring, RenderOptions, View};
+    let mut m = mesh.clone();
+    m.groups.clear();
+    for (i, b) in rig.dominant_bones().into_iter().enumerate() {
+        m.groups
+            .entry(rig.bones[b as usize].name.clone())
+            .or_default()
+            .push(i as u32);
+    }
+    let views = ["front", "side", "top"]
+        .iter()
+        .filter_map(|v| View::named(v))
+        .collect();
+    let img = render::render(
+        &m,
+        &Colouring::Groups,
+        &RenderOptions {
+            width: 1200,
+            height: 400,
+            views,
+            ..Default::default()
+        },
+    );
+    render::save_png(&img, out)?;
+    Ok(())
+}
+
+impl std::fmt::Display for AutorigSummary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        writeln!(
+            f,
+            "{} bones on {} vertices (limbs: {}):",
+            self.bones.len(),
+            self.vertices,
+            self.bones.len().saturating_sub(1) / 2
+        )?;
+        for b in &self.bones {
+            writeln!(
+                f,
+                "  {:<14} from {:<14} joint ({:.3}, {:.3}, {:.3})  turns up to {:.0} deg  moves {} vertices most",
+                b.name,
+                b.parent.as_deref().unwrap_or("-"),
+                b.joint[0],
+                b.joint[1],
+                b.joint[2],
+                b.limit_deg,
+                b.vertices
+            )?;
+        }
+        write!(f, "wrote {}", self.rig.display())?;
+        if let Some(p) = &self.preview {
+            write!(f, "\nwrote {}", p.display())?;
+        }
+        Ok(())
     }
 }

@@ -35,7 +35,8 @@ fn check_files(cfg: &StationConfig) -> Result<(), JobError> {
         }
         (None, Some(t)) => {
             if t.figure()?.is_none() {
-                t.load()?;
+                let (mesh, _) = t.load()?;
+                t.check_rig_file(&mesh)?;
             }
         }
         (None, None) => {}

@@ -544,6 +544,7 @@ impl Pipeline {
             Some((_, fig)) => (fig.mesh.clone(), Some(fig.landmarks())),
             None => source.load()?,
         };
+        source.check_rig_file(&template)?;
         // each capture's fit would fail on it: said once, here, and by `check`
         cfg.conform
             .check_groups(&template)

@@ -4,6 +4,7 @@
 //! with the vertex order unchanged, so a posed or reshaped subject is its own ground truth.
 
 pub mod figure;
+pub mod rig;
 
 use crate::mesh::{FileError, Landmark, Mesh, V3};
 use figure::{Figure, Pose, Skeleton};
@@ -14,7 +15,9 @@ use std::path::{Path, PathBuf};
 /// resolution, or any user mesh with its landmark file and optional groups file (the
 /// paper: "one of the 3D shape samples can serve as a generic mesh directly").
 /// In a station file: `[template]` with `generic = "pig"` and `vertices = 10000`, or
-/// `mesh = "..."`, `landmarks = "..."`, `groups = "..."`.
+/// `mesh = "..."`, `landmarks = "..."`, `groups = "..."` and `rig = "..."` (the
+/// template's bones, skin weights and shape fields, `rig::TemplateRig`; without one a
+/// mesh is rigged automatically).
 #[derive(Debug, Clone, Default, serde::Serialize, serde::Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct TemplateSource {
@@ -23,6 +26,7 @@ pub struct TemplateSource {
     pub mesh: Option<PathBuf>,
     pub landmarks: Option<PathBuf>,
     pub groups: Option<PathBuf>,
+    pub rig: Option<PathBuf>,
 }
 
 /// Fewest and most vertices of a generic template.
@@ -67,8 +71,10 @@ impl TemplateSource {
                         VERTICES.end()
                     ));
                 }
-                if self.landmarks.is_some() || self.groups.is_some() {
-                    return Err("a generic template brings its own landmarks and groups".into());
+                if self.landmarks.is_some() || self.groups.is_some() || self.rig.is_some() {
+                    return Err(
+                        "a generic template brings its own landmarks, groups and rig".into(),
+                    );
                 }
                 Ok(())
             }
@@ -84,9 +90,14 @@ impl TemplateSource {
 
     /// Makes relative paths absolute against `base` (a config file's folder).
     pub fn resolve(&mut self, base: &Path) {
-        for p in [&mut self.mesh, &mut self.landmarks, &mut self.groups]
-            .into_iter()
-            .flatten()
+        for p in [
+            &mut self.mesh,
+            &mut self.landmarks,
+            &mut self.groups,
+            &mut self.rig,
+        ]
+        .into_iter()
+        .flatten()
         {
             if p.is_relative() {
                 *p = base.join(&*p);
@@ -124,6 +135,36 @@ impl TemplateSource {
                 Ok((m, lms))
             }
             _ => unreachable!("checked: a generic template returned above"),
+        }
+    }
+}
+
+impl TemplateSource {
+    /// The template's rig for `mesh` (the template as [`TemplateSource::load`] gives
+    /// it): a generic template's own, the named rig file checked against the mesh, or an
+    /// automatic one.
+    pub fn rig(&self, mesh: &Mesh) -> Result<rig::TemplateRig, FileError> {
+        if let Some((kind, fig)) = self.figure()? {
+            return Ok(rig::TemplateRig::generic(&fig, kind));
+        }
+        match (&self.rig, &self.mesh) {
+            (Some(path), _) => rig::TemplateRig::read(path, mesh.vertices.len()),
+            (None, mesh_path) => {
+                let name = mesh_path
+                    .as_ref()
+                    .map_or("the template".into(), |p| p.display().to_string());
+                rig::TemplateRig::automatic(mesh, &rig::AutoRigSettings::default())
+                    .map_err(|e| FileError::content(&name, format!("automatic rig: {e}")))
+            }
+        }
+    }
+
+    /// Reads and checks the named rig file, if there is one (a bad one is an error at
+    /// start-up, not at the first capture).
+    pub fn check_rig_file(&self, mesh: &Mesh) -> Result<(), FileError> {
+        match &self.rig {
+            Some(path) => rig::TemplateRig::read(path, mesh.vertices.len()).map(|_| ()),
+            None => Ok(()),
         }
     }
 }
