@@ -5,9 +5,10 @@
 //! Sumner non-rigid ICP (`benches/peer/trimesh_sumner.py`, needs python3 with trimesh,
 //! scipy, rtree) on the 11k case in the same run and prints the speed ratio.
 
-use conformd::conform::{ConformOptions, Conformed, conform};
+use conformd::conform::{ConformOptions, Conformed, conform, conform_rigged};
 use conformd::synth::cases::{self, ArticulatedSpec, Case};
 use conformd::synth::devset;
+use conformd::template::rig::TemplateRig;
 use std::time::Instant;
 
 /// The options conformed with: the defaults, or `--options FILE` (a `[conform]`-style
@@ -23,17 +24,43 @@ fn options() -> ConformOptions {
     }
 }
 
-fn run(case: &Case, landmarks: bool) -> Conformed {
+fn run(case: &Case, landmarks: bool, rig: Option<&TemplateRig>) -> Conformed {
     let lm = landmarks.then(|| (&case.template_landmarks[..], &case.scan_landmarks[..]));
-    conform(&case.template, &case.scan, lm, &options(), &mut |_| {}).expect("conforms")
+    match rig {
+        None => conform(&case.template, &case.scan, lm, &options(), &mut |_| {}),
+        Some(rig) => {
+            let never = std::sync::atomic::AtomicBool::new(false);
+            conform_rigged(
+                &case.template,
+                Some(rig),
+                &case.scan,
+                lm,
+                &options(),
+                &mut |_| {},
+                &never,
+            )
+        }
+    }
+    .expect("conforms")
 }
 
 fn bench(label: &str, case: &Case, landmarks: bool, repeats: usize, target: Option<f64>) -> f64 {
+    bench_rigged(label, case, landmarks, None, repeats, target)
+}
+
+fn bench_rigged(
+    label: &str,
+    case: &Case,
+    landmarks: bool,
+    rig: Option<&TemplateRig>,
+    repeats: usize,
+    target: Option<f64>,
+) -> f64 {
     let mut times = Vec::new();
     let mut last = None;
     for _ in 0..repeats {
         let t = Instant::now();
-        let r = run(case, landmarks);
+        let r = run(case, landmarks, rig);
         times.push(t.elapsed().as_secs_f64());
         last = Some(r);
     }
@@ -134,6 +161,18 @@ fn main() {
     }
     let c = case(11_300, 100_000, true);
     bench("11k onto 100k, no landmarks", &c, false, 5, Some(1.5));
+    // the station's case: the generic body's rig fitted first (its figure is the case's
+    // template)
+    let fig = conformd::template::figure::build(&conformd::template::figure::humanoid(), 11_300);
+    let rig = TemplateRig::generic(&fig, conformd::template::Kind::Body);
+    bench_rigged(
+        "11k onto 100k, no landmarks, rig",
+        &c,
+        false,
+        Some(&rig),
+        5,
+        Some(0.5),
+    );
     // an outside mesh (uneven, open), posed, onto 100k points
     let cat = devset::with_holes(
         &devset::uneven(&devset::load("cat").expect("dev mesh"), 0.5, 11),

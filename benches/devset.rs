@@ -200,6 +200,19 @@ fn main() {
     }
 }
 
+/// Each semantic landmark's error and the limb ends on another limb.
+fn print_marks(s: &conformd::synth::semantic::SemanticScore) {
+    let per: Vec<String> = s
+        .per_mark
+        .iter()
+        .map(|(m, d)| format!("{m} {:.2}", d * 100.0))
+        .collect();
+    println!("  {}", per.join(", "));
+    if !s.wrong_limb.is_empty() {
+        println!("  on another limb: {}", s.wrong_limb.join(", "));
+    }
+}
+
 /// The generic templates onto outside subjects without landmarks (the up axis known),
 /// scored by the semantic landmarks marked on both.
 fn generic(opts: &ConformOptions, only: &[&str], pictures: Option<&std::path::Path>) {
@@ -212,6 +225,11 @@ fn generic(opts: &ConformOptions, only: &[&str], pictures: Option<&std::path::Pa
     let mut n = 0;
     // `--front`: the station also knows which way the subject faces
     let with_front = std::env::args().any(|a| a == "--front");
+    // `--rig-only`: the articulated fit of the template's rig alone, no elastic fit
+    let rig_only = std::env::args().any(|a| a == "--rig-only");
+    // `--no-rig`: the template's rig not fitted first (the limb search's start, as
+    // before the rig)
+    let without_rig = std::env::args().any(|a| a == "--no-rig");
     // `--turns 0,90,180,270`: every subject also turned to these headings
     let turns: Vec<f64> = std::env::args()
         .skip_while(|a| a != "--turns")
@@ -239,7 +257,59 @@ fn generic(opts: &ConformOptions, only: &[&str], pictures: Option<&std::path::Pa
         } else {
             c.options(opts)
         };
-        let r = conform(&c.template, &c.scan, None, &o, &mut |_| {}).expect("conforms");
+        if rig_only {
+            // the articulated fit alone: the generic template's rig from each placement
+            // the automatic alignment leaves, the best kept by its trimmed distances
+            let (fits, rep) =
+                conformd::conform::rig_fit_only(&c.template, &c.rig, &c.scan, &o).expect("rig fit");
+            let a = rep.articulated.expect("a rig fit");
+            let scores: Vec<String> = a
+                .hypotheses
+                .iter()
+                .map(|f| format!("{:.4}", (f.template_to_scan + f.scan_to_template) * 100.0))
+                .collect();
+            let best = &fits[0];
+            let secs = t.elapsed().as_secs_f64();
+            let s = c.score(best);
+            sum += s.mean;
+            n += 1;
+            let mesh = conformd::mesh::Mesh::new(best.clone(), c.template.triangles.clone());
+            println!(
+                "{:<44} {:>6} | {:>6.3} {:>6.3} {:>6} | {:>5} {:>6.3} | {:>6.2} {} rig fit: scores {} coverage {} shape {:?}",
+                c.name,
+                c.scan.vertices.len(),
+                s.mean * 100.0,
+                s.max * 100.0,
+                s.wrong_limb.len(),
+                conformd::mesh::quality::folded_triangles(&mesh),
+                0.0,
+                secs,
+                match c.part {
+                    devset::Part::Development => "dev",
+                    devset::Part::Validation => "VALIDATION",
+                },
+                scores.join("/"),
+                a.hypotheses
+                    .iter()
+                    .map(|f| format!("{:.2}", f.coverage))
+                    .collect::<Vec<_>>()
+                    .join("/"),
+                a.shape
+            );
+            print_marks(&s);
+            if let Some(dir) = pictures {
+                std::fs::create_dir_all(dir).expect("pictures folder");
+                let stem = c.name.replace([' ', ','], "_");
+                write_mesh(&dir.join(format!("{stem}_rigfit.obj")), &mesh).expect("result");
+                write_mesh(&dir.join(format!("{stem}_scan.ply")), &c.scan).expect("scan");
+            }
+            continue;
+        }
+        let r = if without_rig {
+            conform(&c.template, &c.scan, None, &o, &mut |_| {}).expect("conforms")
+        } else {
+            c.conform(&o).expect("conforms")
+        };
         let secs = t.elapsed().as_secs_f64();
         let s = c.score(&r.mesh.vertices);
         if let Some(dir) = pictures {
@@ -277,15 +347,7 @@ fn generic(opts: &ConformOptions, only: &[&str], pictures: Option<&std::path::Pa
                 devset::Part::Validation => "VALIDATION",
             }
         );
-        let per: Vec<String> = s
-            .per_mark
-            .iter()
-            .map(|(m, d)| format!("{m} {:.2}", d * 100.0))
-            .collect();
-        println!("  {}", per.join(", "));
-        if !s.wrong_limb.is_empty() {
-            println!("  on another limb: {}", s.wrong_limb.join(", "));
-        }
+        print_marks(&s);
         if let conformd::conform::GlobalReport::Automatic(a) = &r.report.global {
             eprintln!(
                 "  alignment: {} candidates, residual {:.4} (runner-up {:?}), {} fitted, kept {}; limbs turned {:?}",

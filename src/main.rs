@@ -17,6 +17,7 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
         Cmd::Conform {
             template,
             template_groups,
+            template_rig,
             scan,
             template_landmarks,
             scan_landmarks,
@@ -26,7 +27,7 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
             report,
         } => {
             let opts = jobs::conform_options(config.as_deref(), method)?;
-            let template = match (template, &config) {
+            let mut template = match (template, &config) {
                 (Some(t), _) => {
                     TemplateSource::named(&t, template_groups).map_err(jobs::JobError::Usage)?
                 }
@@ -37,6 +38,14 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
                     ));
                 }
             };
+            if template_rig.is_some() {
+                if template.generic.is_some() {
+                    return Err(jobs::JobError::Usage(
+                        "--template-rig is for a template mesh: a generic template brings its own rig".into(),
+                    ));
+                }
+                template.rig = template_rig;
+            }
             let files = jobs::ConformFiles {
                 template,
                 scan,

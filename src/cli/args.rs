@@ -27,6 +27,10 @@ pub enum Cmd {
         /// vertex groups of a template mesh: lines `name i j k ...`
         #[arg(long)]
         template_groups: Option<PathBuf>,
+        /// the template mesh's rig (`autorig`, or one's own): fitted before the elastic
+        /// fit when there are no landmarks (a generic template brings its own)
+        #[arg(long)]
+        template_rig: Option<PathBuf>,
         /// scan: a mesh with holes or a point cloud (.ply, .obj or .off)
         #[arg(long)]
         scan: PathBuf,

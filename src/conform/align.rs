@@ -68,6 +68,9 @@ pub struct AlignReport {
     /// to the kept hypothesis's limbs
     pub limbs_found: usize,
     pub limb_turns: Vec<f64>,
+    /// the template's rig fitted before the elastic fit, when it has one
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub articulated: Option<super::articulated::ArticulatedReport>,
 }
 
 /// Residual ratio under which the runner-up alignment is fitted too: near-symmetric
@@ -199,6 +202,7 @@ pub fn auto_align(
         kept: 0,
         limbs_found: 0,
         limb_turns: Vec::new(),
+        articulated: None,
     };
     (results[0].1, runner_up, report)
 }

@@ -38,23 +38,13 @@ pub fn find(v: &[V3], neighbours: &[Vec<u32>], count: usize) -> Vec<Limb> {
     if v.is_empty() {
         return Vec::new();
     }
-    let c = v.iter().sum::<V3>() / v.len() as f64;
-    let centre = (0..v.len())
-        .min_by(|&a, &b| (v[a] - c).norm().total_cmp(&(v[b] - c).norm()))
-        .unwrap_or(0) as u32;
-    let from_centre = topology::edge_distances(v, neighbours, &[centre]).0;
+    let (_, from_centre) = topology::centre_distances(v, neighbours);
     let mut nearest = from_centre.clone();
     let mut limbs = Vec::new();
     for _ in 0..count {
-        let Some(tip) = (0..v.len())
-            .filter(|&i| nearest[i].is_finite())
-            .max_by(|&a, &b| nearest[a].total_cmp(&nearest[b]))
-        else {
+        let Some(tip) = topology::farthest_sample(&nearest) else {
             break;
         };
-        if !(nearest[tip] > 0.0) {
-            break;
-        }
         let length = from_centre[tip];
         let (r, h) = (JOINT_SHARE * length, BAND_SHARE * length);
         // the limb needs exact distances out to r + h, the farthest-point update only
@@ -312,7 +302,7 @@ fn within(tree: &ImmutableKdTree<f64, 3>, p: &V3, r: f64) -> bool {
 const ONE: std::num::NonZero<usize> = std::num::NonZero::new(1).unwrap();
 
 /// `count` unit directions spread over the sphere (a Fibonacci lattice).
-fn sphere_directions(count: usize) -> Vec<V3> {
+pub(crate) fn sphere_directions(count: usize) -> Vec<V3> {
     let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
     (0..count)
         .map(|k| {

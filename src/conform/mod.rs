@@ -12,6 +12,7 @@
 //! The result keeps the template's vertex order and triangles exactly.
 
 pub mod align;
+pub mod articulated;
 pub mod coarse;
 pub mod correspond;
 pub mod fill;
@@ -25,6 +26,7 @@ use crate::mesh::landmarks::{Landmark, LandmarkPos};
 use crate::mesh::quality::{self, Variation};
 use crate::mesh::transform::fit_similarity;
 use crate::mesh::{Mesh, V3, topology, vertex_normals};
+use crate::template::rig::TemplateRig;
 use correspond::{MatchLimits, ScanSurface};
 use rayon::prelude::*;
 use std::collections::BTreeMap;
@@ -540,6 +542,20 @@ impl std::fmt::Display for ConformReport {
         if let Some(w) = &self.distortion_warning {
             write!(f, "\nwarning: {w}")?;
         }
+        if let GlobalReport::Automatic(a) = &self.global
+            && let Some(r) = a.articulated.as_ref().filter(|r| r.ambiguous)
+        {
+            let s: Vec<String> = r
+                .hypotheses
+                .iter()
+                .map(|h| format!("{:.3}%", (h.template_to_scan + h.scan_to_template) * 100.0))
+                .collect();
+            write!(
+                f,
+                "\nwarning: two placements of the rig fit almost alike (trimmed distances {}): check which way the result faces, or fit it by landmarks",
+                s.join(" and ")
+            )?;
+        }
         Ok(())
     }
 }
@@ -686,6 +702,30 @@ pub fn conform(
     conform_cancellable(template, scan, landmarks, opts, progress, &never)
 }
 
+/// [`conform_cancellable`] with the template's rig: without landmarks (default method)
+/// the rig's pose, shape and placement are fitted first (`articulated`) from each
+/// placement the alignment leaves, the best by its distances both ways kept, and the
+/// elastic fit starts from it (its springs still hold the template's own shape: with
+/// the posed template as their rest shape the development set came out worse).
+pub fn conform_rigged(
+    template: &Mesh,
+    rig: Option<&TemplateRig>,
+    scan: &Mesh,
+    landmarks: Option<(&[Landmark], &[Landmark])>,
+    opts: &ConformOptions,
+    progress: &mut Progress,
+    cancel: &std::sync::atomic::AtomicBool,
+) -> Result<Conformed, ConformError> {
+    if let Some(r) = rig {
+        r.check(template.vertices.len())
+            .map_err(|e| ConformError::Template(format!("its rig: {e}")))?;
+    }
+    // On one of the pool's threads, the many short parallel loops of an iteration are
+    // shared by work stealing; called from outside, each would be handed to the pool
+    // and waited for (about a tenth of the time on 2 cores).
+    rayon::scope(|_| conform_on_pool(template, rig, scan, landmarks, opts, progress, cancel))
+}
+
 /// What a conformation tells its caller after each iteration. `Send`: the work runs on
 /// the thread pool.
 pub type Progress<'a> = dyn FnMut(&IterationReport) + Send + 'a;
@@ -700,14 +740,12 @@ pub fn conform_cancellable(
     progress: &mut Progress,
     cancel: &std::sync::atomic::AtomicBool,
 ) -> Result<Conformed, ConformError> {
-    // On one of the pool's threads, the many short parallel loops of an iteration are
-    // shared by work stealing; called from outside, each would be handed to the pool
-    // and waited for (about a tenth of the time on 2 cores).
-    rayon::scope(|_| conform_on_pool(template, scan, landmarks, opts, progress, cancel))
+    conform_rigged(template, None, scan, landmarks, opts, progress, cancel)
 }
 
 fn conform_on_pool(
     template: &Mesh,
+    rig: Option<&TemplateRig>,
     scan: &Mesh,
     landmarks: Option<(&[Landmark], &[Landmark])>,
     opts: &ConformOptions,
@@ -757,7 +795,8 @@ fn conform_on_pool(
 
     // 1. Global mapping.
     let t0 = Instant::now();
-    let (hypotheses, mut global_report) = global_mapping(template, &surface, pairs.as_ref(), opts)?;
+    let (hypotheses, mut global_report) =
+        global_mapping(template, rig, &surface, pairs.as_ref(), opts)?;
     times.global = t0.elapsed().as_secs_f64();
 
     // 2-4. The elastic fit: coarse stage, then the iterations; for each alignment
@@ -910,7 +949,10 @@ fn conform_on_pool(
     } = best.expect("at least one hypothesis");
     if let GlobalReport::Automatic(rep) = &mut global_report {
         rep.fitted = fitted;
-        rep.kept = kept;
+        // with a rig the placement was kept before the elastic fit
+        if rep.articulated.is_none() {
+            rep.kept = kept;
+        }
         rep.limb_turns = turns;
     }
     let diag = fit.diag;
@@ -967,6 +1009,7 @@ fn conform_on_pool(
 /// mapping (the springs' frame) and what the report says of it.
 fn global_mapping(
     template: &Mesh,
+    rig: Option<&TemplateRig>,
     surface: &ScanSurface,
     pairs: Option<&Pairs>,
     opts: &ConformOptions,
@@ -980,36 +1023,103 @@ fn global_mapping(
             },
         ),
         None => {
-            let samples = template.surface_samples(ALIGN_TEMPLATE_SAMPLES);
-            let (sim, runner_up, rep) = align::auto_align(&samples, surface, &opts.align);
-            // the paper's method has no distortion-aware springs to judge by
-            let default_method = opts.method == Method::Default;
-            let found = if default_method && opts.align.limbs > 0 {
-                let nb = topology::vertex_neighbours(template.vertices.len(), &template.triangles);
-                limbs::find(&template.vertices, &nb, opts.align.limbs)
-            } else {
-                Vec::new()
-            };
-            let placed = |s: &crate::mesh::transform::Similarity| -> Hypothesis {
-                let mut x: Vec<V3> = template.vertices.iter().map(|v| s.apply(v)).collect();
-                let turns = limbs::search(
-                    &mut x,
-                    &template.triangles,
-                    &found,
-                    surface,
-                    &limbs::SearchSettings::default(),
-                );
-                Hypothesis { x, sim: *s, turns }
-            };
-            let mut h = vec![placed(&sim)];
-            if let (Some(r), true) = (runner_up, default_method) {
-                h.push(placed(&r));
-            }
-            let mut rep = rep;
-            rep.limbs_found = found.len();
+            let (h, rep) = automatic_hypotheses(template, rig, surface, opts);
             (h, GlobalReport::Automatic(rep))
         }
     })
+}
+
+/// Without landmarks: the automatic alignment's placement (and its runner-up, when the
+/// residuals cannot tell them apart), each with the limb search's turns; with a rig
+/// (default method) the rig fitted from each, from rest and guided by the limb search,
+/// the better of the two by its distances both ways.
+fn automatic_hypotheses(
+    template: &Mesh,
+    rig: Option<&TemplateRig>,
+    surface: &ScanSurface,
+    opts: &ConformOptions,
+) -> (Vec<Hypothesis>, align::AlignReport) {
+    let samples = template.surface_samples(ALIGN_TEMPLATE_SAMPLES);
+    let (sim, runner_up, mut rep) = align::auto_align(&samples, surface, &opts.align);
+    // the paper's method has no distortion-aware springs to judge by
+    let default_method = opts.method == Method::Default;
+    let found = if default_method && opts.align.limbs > 0 {
+        let nb = topology::vertex_neighbours(template.vertices.len(), &template.triangles);
+        limbs::find(&template.vertices, &nb, opts.align.limbs)
+    } else {
+        Vec::new()
+    };
+    let placed = |s: &crate::mesh::transform::Similarity| -> Hypothesis {
+        let mut x: Vec<V3> = template.vertices.iter().map(|v| s.apply(v)).collect();
+        let turns = limbs::search(
+            &mut x,
+            &template.triangles,
+            &found,
+            surface,
+            &limbs::SearchSettings::default(),
+        );
+        Hypothesis { x, sim: *s, turns }
+    };
+    let mut h = vec![placed(&sim)];
+    if let (Some(r), true) = (runner_up, default_method) {
+        h.push(placed(&r));
+    }
+    rep.limbs_found = found.len();
+    let Some(rig) = rig.filter(|_| default_method) else {
+        return (h, rep);
+    };
+    let fits: Vec<articulated::Articulated> = h
+        .iter()
+        .map(|guess| {
+            let settings = articulated::ArticulatedSettings::default();
+            let from_rest = articulated::fit(template, rig, surface, &guess.sim, None, &settings);
+            let guided = articulated::fit(
+                template,
+                rig,
+                surface,
+                &guess.sim,
+                Some(&guess.x),
+                &settings,
+            );
+            if guided.score() < from_rest.score() {
+                guided
+            } else {
+                from_rest
+            }
+        })
+        .collect();
+    rep.articulated = Some(articulated::ArticulatedReport::new(rig, &fits));
+    // the rig fit's distances both ways tell the placements apart better than the
+    // elastic fit's stretch (which kept the cow in the large posture facing backwards):
+    // only the best goes on
+    let (kept, best) = fits
+        .into_iter()
+        .zip(h)
+        .enumerate()
+        .min_by(|a, b| a.1.0.score().total_cmp(&b.1.0.score()))
+        .expect("at least one placement");
+    rep.kept = kept;
+    let (f, guess) = best;
+    let h = vec![Hypothesis {
+        x: f.vertices,
+        sim: f.placement,
+        turns: guess.turns,
+    }];
+    (h, rep)
+}
+
+/// The rig's fit alone, without landmarks and without the elastic fit: the kept
+/// hypothesis's template vertices and the alignment's report (every hypothesis's
+/// figures). What a development set scores to see the rig's share of a result.
+pub fn rig_fit_only(
+    template: &Mesh,
+    rig: &TemplateRig,
+    scan: &Mesh,
+    opts: &ConformOptions,
+) -> Result<(Vec<Vec<V3>>, align::AlignReport), ConformError> {
+    let surface = ScanSurface::new(scan)?;
+    let (h, rep) = automatic_hypotheses(template, Some(rig), &surface, opts);
+    Ok((h.into_iter().map(|x| x.x).collect(), rep))
 }
 
 /// Points spread over the template's surface for the automatic alignment: about twice

@@ -109,7 +109,10 @@ pub fn conform_files(
         }
     };
     let lm = landmarks.as_ref().map(|(t, s)| (&t[..], &s[..]));
-    let result = conform::conform(&template, &scan, lm, opts, progress)?;
+    let rig = files.template.fit_rig(&template)?;
+    let never = std::sync::atomic::AtomicBool::new(false);
+    let result =
+        conform::conform_rigged(&template, rig.as_ref(), &scan, lm, opts, progress, &never)?;
     // the report first: a failed command leaves neither file
     if let Some(r) = &files.report {
         write_report(r, &result.report)?;

@@ -354,6 +354,25 @@ pub fn non_manifold_vertices(nv: usize, tris: &[[u32; 3]]) -> usize {
         .count()
 }
 
+/// The vertex nearest the centroid of `v` (where geodesic extremities are measured from)
+/// and every vertex's distance along the edges from it.
+pub fn centre_distances(v: &[crate::mesh::V3], neighbours: &[Vec<u32>]) -> (u32, Vec<f64>) {
+    let c = v.iter().sum::<crate::mesh::V3>() / v.len().max(1) as f64;
+    let centre = (0..v.len())
+        .min_by(|&a, &b| (v[a] - c).norm().total_cmp(&(v[b] - c).norm()))
+        .unwrap_or(0) as u32;
+    (centre, edge_distances(v, neighbours, &[centre]).0)
+}
+
+/// The next farthest-point sample: the vertex farthest (finite, above 0) from every
+/// sample so far, `nearest` holding each vertex's distance to the nearest of them.
+pub fn farthest_sample(nearest: &[f64]) -> Option<usize> {
+    (0..nearest.len())
+        .filter(|&i| nearest[i].is_finite())
+        .max_by(|&a, &b| nearest[a].total_cmp(&nearest[b]))
+        .filter(|&i| nearest[i] > 0.0)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -14,6 +14,7 @@ use crate::rig::capture_set::{CaptureSetDir, CaptureSetError};
 use crate::station::config::StationConfig;
 use crate::stereo::reconstruct::{ReconstructError, ReconstructReport};
 use crate::stereo::rig::{Reconstruction, RigError};
+use crate::template::rig::TemplateRig;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, RwLock};
@@ -422,6 +423,9 @@ pub struct Pipeline {
     pub station: String,
     pub template: Mesh,
     pub template_landmarks: Option<Vec<Landmark>>,
+    /// the template's rig, fitted before the elastic fit when no landmarks are given: a
+    /// generic template's own, or the rig file `[template]` names
+    pub template_rig: Option<TemplateRig>,
     pub conform: ConformOptions,
     pub reconstruction: Reconstruction,
     /// scans as meshes with holes instead of point clouds
@@ -544,7 +548,10 @@ impl Pipeline {
             Some((_, fig)) => (fig.mesh.clone(), Some(fig.landmarks())),
             None => source.load()?,
         };
-        source.check_rig_file(&template)?;
+        let template_rig = match &figure {
+            Some((kind, fig)) => Some(TemplateRig::generic(fig, *kind)),
+            None => source.fit_rig(&template)?,
+        };
         // each capture's fit would fail on it: said once, here, and by `check`
         cfg.conform
             .check_groups(&template)
@@ -563,6 +570,7 @@ impl Pipeline {
             station: cfg.station.name.clone(),
             template,
             template_landmarks,
+            template_rig,
             conform: cfg.conform.clone(),
             reconstruction,
             as_mesh: rig.mesh,
@@ -683,8 +691,9 @@ impl Pipeline {
                     p(Progress::Iteration(it));
                 }
             };
-            conform::conform_cancellable(
+            conform::conform_rigged(
                 &self.template,
+                self.template_rig.as_ref(),
                 &scan,
                 pairs,
                 &self.conform,

@@ -21,6 +21,9 @@ pub struct Mark {
 
 pub struct SemanticCase {
     pub name: String,
+    /// which generic template, and its rig
+    pub kind: Kind,
+    pub rig: crate::template::rig::TemplateRig,
     pub template: Mesh,
     pub scan: Mesh,
     pub marks: Vec<Mark>,
@@ -60,6 +63,24 @@ impl SemanticCase {
         o.align.template_front = Some([1.0, 0.0, 0.0]);
         o.align.scan_front = Some([self.front.x, self.front.y, self.front.z]);
         o
+    }
+
+    /// The station's conformation of the case: the template's rig fitted first
+    /// (`conform_rigged`).
+    pub fn conform(
+        &self,
+        opts: &crate::conform::ConformOptions,
+    ) -> Result<crate::conform::Conformed, crate::conform::ConformError> {
+        let never = std::sync::atomic::AtomicBool::new(false);
+        crate::conform::conform_rigged(
+            &self.template,
+            Some(&self.rig),
+            &self.scan,
+            None,
+            opts,
+            &mut |_| {},
+            &never,
+        )
     }
 
     pub fn score(&self, result: &[V3]) -> SemanticScore {
@@ -231,6 +252,8 @@ pub fn generic_cases_turned(
                 format!(", turned {turn}")
             };
             out.push(SemanticCase {
+                kind,
+                rig: crate::template::rig::TemplateRig::generic(&fig, kind),
                 name: format!(
                     "generic {} onto {subject_name}, {what}{turned}",
                     match kind {

@@ -140,32 +140,18 @@ impl TemplateSource {
 }
 
 impl TemplateSource {
-    /// The template's rig for `mesh` (the template as [`TemplateSource::load`] gives
-    /// it): a generic template's own, the named rig file checked against the mesh, or an
-    /// automatic one.
-    pub fn rig(&self, mesh: &Mesh) -> Result<rig::TemplateRig, FileError> {
+    /// The rig the fit uses: a generic template's own, or the named rig file (read and
+    /// checked: a bad one is an error at start-up, not at the first capture). A mesh
+    /// without a rig file is fitted without one (the automatic rig is not yet measured
+    /// in the fit).
+    pub fn fit_rig(&self, mesh: &Mesh) -> Result<Option<rig::TemplateRig>, FileError> {
         if let Some((kind, fig)) = self.figure()? {
-            return Ok(rig::TemplateRig::generic(&fig, kind));
+            return Ok(Some(rig::TemplateRig::generic(&fig, kind)));
         }
-        match (&self.rig, &self.mesh) {
-            (Some(path), _) => rig::TemplateRig::read(path, mesh.vertices.len()),
-            (None, mesh_path) => {
-                let name = mesh_path
-                    .as_ref()
-                    .map_or("the template".into(), |p| p.display().to_string());
-                rig::TemplateRig::automatic(mesh, &rig::AutoRigSettings::default())
-                    .map_err(|e| FileError::content(&name, format!("automatic rig: {e}")))
-            }
-        }
-    }
-
-    /// Reads and checks the named rig file, if there is one (a bad one is an error at
-    /// start-up, not at the first capture).
-    pub fn check_rig_file(&self, mesh: &Mesh) -> Result<(), FileError> {
-        match &self.rig {
-            Some(path) => rig::TemplateRig::read(path, mesh.vertices.len()).map(|_| ()),
-            None => Ok(()),
-        }
+        self.rig
+            .as_ref()
+            .map(|path| rig::TemplateRig::read(path, mesh.vertices.len()))
+            .transpose()
     }
 }
 

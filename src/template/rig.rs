@@ -438,22 +438,13 @@ impl TemplateRig {
         }
         let nb = topology::vertex_neighbours(v.len(), &mesh.triangles);
         let c = v.iter().sum::<V3>() / v.len() as f64;
-        let centre = (0..v.len())
-            .min_by(|&a, &b| (v[a] - c).norm().total_cmp(&(v[b] - c).norm()))
-            .unwrap_or(0) as u32;
-        let from_centre = topology::edge_distances(v, &nb, &[centre]).0;
+        let (_, from_centre) = topology::centre_distances(v, &nb);
         let mut nearest = from_centre.clone();
         let mut found: Vec<FoundLimb> = Vec::new();
         for _ in 0..s.limbs {
-            let Some(tip) = (0..v.len())
-                .filter(|&i| nearest[i].is_finite())
-                .max_by(|&a, &b| nearest[a].total_cmp(&nearest[b]))
-            else {
+            let Some(tip) = topology::farthest_sample(&nearest) else {
                 break;
             };
-            if !(nearest[tip] > 0.0) {
-                break;
-            }
             let length = from_centre[tip];
             let from_tip = topology::edge_distances(v, &nb, &[tip as u32]).0;
             for (n, d) in nearest.iter_mut().zip(&from_tip) {
