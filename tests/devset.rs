@@ -490,12 +490,13 @@ fn the_limb_search_turns_swung_limbs_toward_the_scan() {
 /// The generic templates onto outside subjects without landmarks, as a station fits them
 /// (the template's rig first): (case, mean semantic landmark error %, limb ends on
 /// another limb). Bounds 1.25x the figures measured with the rig fit (2026-12-06: 3.95,
-/// 6.75, 3.80, 3.45, 2.63, 4.85, 2.00, 1.85); far from the aim (1.5%, no limb swapped),
+/// 6.75, 3.80, 3.45, 2.63, 4.85, 2.00, 1.85; 4.00, 6.70, 3.80, 3.45, 2.65, 4.85, 2.00,
+/// 1.79 once the rig starts from the limb search alone); far from the aim (1.5%, no limb swapped),
 /// and the README says so. Four moved up with the rig (the man's large posture from
 /// 2.57, the cow's from 2.38 and 4.30, the woman's from 1.47): the development set bends
 /// its subjects at 45% of each limb's geodesic length, where the limb search turns and
 /// the rig's anatomical joints do not; accepted for the woman in the large posture, no
-/// longer fitted backwards (26.84% with 3 limbs swapped -> 1.85%, none). The man's two
+/// longer fitted backwards (26.84% with 3 limbs swapped -> 1.79%, none). The man's two
 /// toes: the posing crossed his legs.
 const GENERIC_BOUNDS: &[(&str, f64, usize)] = &[
     ("generic pig onto koala, posed", 4.94, 0),
@@ -595,21 +596,28 @@ fn large_generic_case(
 fn a_person_facing_the_other_way_is_fitted_facing_that_way() {
     // the man in the large posture turned round (development): with the up axis alone
     // he is fitted backwards (25.8% with the rig, 27.8% before it); a station that knows
-    // its front fits him facing it
+    // its front fits him facing it (accuracy: the next test)
     let c = large_generic_case(devset::Part::Development, "human", 180.0);
     let (facing, _, _) = fitted_facing(&c, &c.options_with_front(&ConformOptions::default()));
     assert!(facing > 0.7, "fitted facing away: {facing}");
 }
 
 #[test]
-#[ignore = "known regression with the rig fit: 15.0% and both feet on the other leg (7.31%, one hand, before); the rig's chain search leaves his right leg on the left one"]
 fn a_person_turned_round_is_fitted_well_when_the_front_is_known() {
     let c = large_generic_case(devset::Part::Development, "human", 180.0);
     let o = c.options_with_front(&ConformOptions::default());
     let r = c.conform(&o).unwrap();
     let s = c.score(&r.mesh.vertices);
+    eprintln!(
+        "{}: {:.3}%, on another limb {:?}",
+        c.name,
+        s.mean * 100.0,
+        s.wrong_limb
+    );
+    // measured 4.21% and none (7.31% and a hand on another limb before the rig); bound
+    // at 1.25x
     assert!(
-        s.mean < 0.0914 && s.wrong_limb.is_empty(),
+        s.mean < 0.0526 && s.wrong_limb.is_empty(),
         "{} {:?}",
         s.mean,
         s.wrong_limb
@@ -619,7 +627,7 @@ fn a_person_turned_round_is_fitted_well_when_the_front_is_known() {
 #[test]
 fn a_station_that_knows_the_front_fits_the_person_facing_it() {
     // validation (never tuned on): the woman in the large posture, with `[align]
-    // template_front`/`scan_front`: measured 1.85% with the rig (6.96% and a hand on the
+    // template_front`/`scan_front`: measured 1.79% with the rig (6.96% and a hand on the
     // other arm before it), bound at 1.25x
     let c = large_generic_case(devset::Part::Validation, "woman", 0.0);
     let (facing, mean, r) = fitted_facing(&c, &c.options_with_front(&ConformOptions::default()));
