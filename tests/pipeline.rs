@@ -92,6 +92,16 @@ fn process_gives_what_reconstruct_then_conform_give() {
         serde_json::from_slice(&std::fs::read(folder.join("report.json")).unwrap()).unwrap();
     assert_eq!(json["capture"], id.as_str());
     assert_eq!(json["station"], "crate-1");
+    // the generic pig's rig was fitted before the elastic fit, and the report says how
+    let fitted = &json["conformation"]["global"]["articulated"];
+    assert!(
+        fitted["joints_deg"].is_object()
+            && fitted["hypotheses"]
+                .as_array()
+                .is_some_and(|h| !h.is_empty()),
+        "{}",
+        json["conformation"]["global"]
+    );
     eprintln!("{report}");
 
     // the same by hand: reconstruct, then conform the file it wrote
