@@ -736,4 +736,25 @@ mod tests {
         assert!(err < 0.005, "{err}");
         assert!(rigid > 0.04, "the start was not far off: {rigid}");
     }
+
+    #[test]
+    fn close_placements_are_called_ambiguous() {
+        let fig = template::build(Kind::Pig, 600);
+        let rig = TemplateRig::generic(&fig, Kind::Pig);
+        let at = |to: f64, from: f64| Articulated {
+            placement: Similarity::default(),
+            pose: RigPose::rest(&rig),
+            vertices: Vec::new(),
+            template_to_scan: to,
+            scan_to_template: from,
+            coverage: 0.9,
+        };
+        let close = ArticulatedReport::new(&rig, &[at(0.010, 0.010), at(0.0105, 0.0105)]);
+        assert!(close.ambiguous);
+        let apart = ArticulatedReport::new(&rig, &[at(0.010, 0.010), at(0.013, 0.013)]);
+        assert!(!apart.ambiguous);
+        let alone = ArticulatedReport::new(&rig, &[at(0.010, 0.010)]);
+        assert!(!alone.ambiguous);
+        assert_eq!(close.hypotheses.len(), 2);
+    }
 }
