@@ -133,10 +133,7 @@ fn main() {
             r.report.final_variation.edge_length.std,
             truth_var.edge_length.std,
             secs,
-            match c.part {
-                devset::Part::Development => "dev",
-                devset::Part::Validation => "VALIDATION",
-            }
+            part_label(c.part)
         );
         // the truth's own folds over neighbouring triangles (a crumpled posing would have
         // no true answer); turned triangles of a posed limb are not folds
@@ -197,6 +194,14 @@ fn main() {
             f.max_anywhere * 100.0,
             r.report.mean_distance_relative * 100.0
         );
+    }
+}
+
+/// How a case's part is printed: the validation part loud, as never tuned on.
+fn part_label(p: devset::Part) -> &'static str {
+    match p {
+        devset::Part::Development => "dev",
+        devset::Part::Validation => "VALIDATION",
     }
 }
 
@@ -284,10 +289,7 @@ fn generic(opts: &ConformOptions, only: &[&str], pictures: Option<&std::path::Pa
                 conformd::mesh::quality::folded_triangles(&mesh),
                 0.0,
                 secs,
-                match c.part {
-                    devset::Part::Development => "dev",
-                    devset::Part::Validation => "VALIDATION",
-                },
+                part_label(c.part),
                 scores.join("/"),
                 a.hypotheses
                     .iter()
@@ -342,10 +344,7 @@ fn generic(opts: &ConformOptions, only: &[&str], pictures: Option<&std::path::Pa
             r.report.folded_triangles,
             r.report.final_variation.edge_length.std,
             secs,
-            match c.part {
-                devset::Part::Development => "dev",
-                devset::Part::Validation => "VALIDATION",
-            }
+            part_label(c.part)
         );
         print_marks(&s);
         if let conformd::conform::GlobalReport::Automatic(a) = &r.report.global {

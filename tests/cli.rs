@@ -846,6 +846,27 @@ fn template_and_autorig_write_rigs_that_a_station_reads() {
         "{said}"
     );
     let auto = TemplateRig::read(&d.join("auto.rig.json"), pig.vertices.len()).unwrap();
+    // what cannot be rigged is refused by name, and no rig file is left
+    let cloud = conformd::mesh::Mesh::new(pig.vertices.clone(), Vec::new());
+    conformd::mesh::write_mesh(&d.join("cloud.ply"), &cloud).unwrap();
+    for (args, words) in [
+        (
+            &["autorig", "cloud.ply", "--out", "no.rig.json"][..],
+            &["cloud.ply", "triangles"][..],
+        ),
+        (
+            &["autorig", "pig.obj", "--limbs", "0", "--out", "no.rig.json"][..],
+            &["--limbs 0"][..],
+        ),
+    ] {
+        let out = conformd(args, d);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{args:?} passed");
+        for w in words {
+            assert!(err.contains(w), "{args:?}: '{w}' not in {err}");
+        }
+        assert!(!d.join("no.rig.json").exists());
+    }
     assert!(auto.bones.len() >= 9, "{:?}", auto.bones);
     let png = image::open(d.join("auto.png")).unwrap();
     assert_eq!((png.width(), png.height()), (1200, 400));

@@ -93,7 +93,7 @@ pub fn conform_files(
             files.out.display()
         )));
     }
-    let (template, own_landmarks) = files.template.load()?;
+    let (template, own_landmarks, rig) = files.template.load_rigged()?;
     let scan = mesh::read_mesh(&files.scan)?;
     let template_landmarks = match &files.template_landmarks {
         Some(t) => Some(mesh::read_landmarks(t)?),
@@ -109,7 +109,6 @@ pub fn conform_files(
         }
     };
     let lm = landmarks.as_ref().map(|(t, s)| (&t[..], &s[..]));
-    let rig = files.template.fit_rig(&template)?;
     let never = std::sync::atomic::AtomicBool::new(false);
     let result =
         conform::conform_rigged(&template, rig.as_ref(), &scan, lm, opts, progress, &never)?;

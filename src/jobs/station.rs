@@ -36,7 +36,7 @@ fn check_files(cfg: &StationConfig) -> Result<(), JobError> {
         (None, Some(t)) => {
             if t.figure()?.is_none() {
                 let (mesh, _) = t.load()?;
-                t.fit_rig(&mesh)?;
+                t.rig_file(&mesh)?;
             }
         }
         (None, None) => {}

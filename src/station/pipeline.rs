@@ -550,7 +550,7 @@ impl Pipeline {
         };
         let template_rig = match &figure {
             Some((kind, fig)) => Some(TemplateRig::generic(fig, *kind)),
-            None => source.fit_rig(&template)?,
+            None => source.rig_file(&template)?,
         };
         // each capture's fit would fail on it: said once, here, and by `check`
         cfg.conform

@@ -140,18 +140,31 @@ impl TemplateSource {
 }
 
 impl TemplateSource {
-    /// The rig the fit uses: a generic template's own, or the named rig file (read and
-    /// checked: a bad one is an error at start-up, not at the first capture). A mesh
-    /// without a rig file is fitted without one (the automatic rig is not yet measured
-    /// in the fit).
-    pub fn fit_rig(&self, mesh: &Mesh) -> Result<Option<rig::TemplateRig>, FileError> {
-        if let Some((kind, fig)) = self.figure()? {
-            return Ok(Some(rig::TemplateRig::generic(&fig, kind)));
-        }
+    /// The named rig file, read and checked against `mesh` (a bad one is an error at
+    /// start-up, not at the first capture); `None` without one. A generic template's own
+    /// rig comes from [`TemplateSource::load_rigged`].
+    pub fn rig_file(&self, mesh: &Mesh) -> Result<Option<rig::TemplateRig>, FileError> {
         self.rig
             .as_ref()
             .map(|path| rig::TemplateRig::read(path, mesh.vertices.len()))
             .transpose()
+    }
+
+    /// [`TemplateSource::load`] with the rig the fit uses: a generic template's own
+    /// (its figure built once), or the named rig file. A mesh without a rig file is
+    /// fitted without one (the automatic rig is not yet measured in the fit).
+    #[allow(clippy::type_complexity)]
+    pub fn load_rigged(
+        &self,
+    ) -> Result<(Mesh, Option<Vec<Landmark>>, Option<rig::TemplateRig>), FileError> {
+        if let Some((kind, fig)) = self.figure()? {
+            let rig = rig::TemplateRig::generic(&fig, kind);
+            let lms = fig.landmarks();
+            return Ok((fig.mesh, Some(lms), Some(rig)));
+        }
+        let (mesh, lms) = self.load()?;
+        let rig = self.rig_file(&mesh)?;
+        Ok((mesh, lms, rig))
     }
 }
 
