@@ -33,6 +33,9 @@ pub struct AlignOptions {
     /// geodesic extremities of the template tried as limbs by the articulation search
     /// after the rigid alignment (`conform::limbs`); 0 = no search
     pub limbs: usize,
+    /// a template without a rig gets an automatic one (`TemplateRig::automatic`: its
+    /// limbs at geodesic extremities) fitted after the limb search; false fits none
+    pub automatic_rig: bool,
 }
 
 impl Default for AlignOptions {
@@ -46,6 +49,7 @@ impl Default for AlignOptions {
             icp_iterations: 40,
             trim: 0.85,
             limbs: 10,
+            automatic_rig: true,
         }
     }
 }

@@ -7,7 +7,7 @@
 
 use super::correspond::ScanSurface;
 use super::limbs::sphere_directions;
-use crate::mesh::transform::Similarity;
+use crate::mesh::transform::{Similarity, rotation_angle, rotation_vector};
 use crate::mesh::{Mesh, V3, vertex_areas};
 use crate::template::rig::{RigPose, TemplateRig};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
@@ -94,6 +94,13 @@ pub struct ArticulatedReport {
     /// best: the heading may be wrong, and the result wants an operator's look (or
     /// landmarks)
     pub ambiguous: bool,
+    /// where the rig came from: `the generic pig's skeleton`, `automatic` (found on
+    /// the template, which has none), or the file's own words
+    pub rig: String,
+    /// the limb search's start scored as the hypotheses are (distances both ways,
+    /// relative), and whether it, not the rig's fit, started the elastic fit
+    pub limb_search_score: Option<f64>,
+    pub kept_limb_search: bool,
 }
 
 /// Trimmed distances (both ways, summed) of two placements' fits closer than this ratio
@@ -123,7 +130,7 @@ impl ArticulatedReport {
                 rig.bones
                     .iter()
                     .zip(&f.pose.turns)
-                    .map(|(b, r)| (b.name.clone(), r.angle().to_degrees()))
+                    .map(|(b, r)| (b.name.clone(), rotation_angle(r).to_degrees()))
                     .filter(|(_, d)| *d >= 0.5)
                     .map(|(n, d)| (n, (d * 10.0).round() / 10.0))
                     .collect()
@@ -141,6 +148,9 @@ impl ArticulatedReport {
                 scores.sort_by(f64::total_cmp);
                 scores.len() > 1 && scores[1] <= scores[0] * AMBIGUOUS_SCORE_RATIO
             },
+            rig: rig.source.to_string(),
+            limb_search_score: None,
+            kept_limb_search: false,
         }
     }
 }
@@ -283,7 +293,7 @@ impl Params {
             let w = V3::new(d[7 + 3 * k], d[8 + 3 * k], d[9 + 3 * k]);
             let turned = Rotation3::new(w) * st.pose.turns[b];
             let limit = rig.bones[b].limit_deg.to_radians();
-            let v = turned.scaled_axis();
+            let v = rotation_vector(&turned);
             out.pose.turns[b] = if v.norm() > limit {
                 Rotation3::new(v * (limit / v.norm()))
             } else {
@@ -297,6 +307,54 @@ impl Params {
         }
         out
     }
+}
+
+/// Trimmed distances both ways (relative to `diag`): the points `x` to the scan, the
+/// scan's `samples` to the points; and the share of samples within 2%.
+fn figures(x: &[V3], surface: &ScanSurface, samples: &[usize], diag: f64) -> (f64, f64, f64) {
+    let to_scan = trimmed_mean(
+        x.par_iter()
+            .map(|p| surface.nearest_point(p).1 / diag)
+            .collect(),
+    );
+    let arr: Vec<[f64; 3]> = x.iter().map(|p| [p.x, p.y, p.z]).collect();
+    let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&arr);
+    let from_scan: Vec<f64> = samples
+        .par_iter()
+        .map(|&k| {
+            let q = surface.points[k];
+            tree.nearest_one::<SquaredEuclidean>(&[q.x, q.y, q.z])
+                .distance
+                .sqrt()
+                / diag
+        })
+        .collect();
+    let coverage =
+        from_scan.iter().filter(|&&d| d < 0.02).count() as f64 / from_scan.len().max(1) as f64;
+    (to_scan, trimmed_mean(from_scan), coverage)
+}
+
+/// The score of [`Articulated::score`] for any placing of the template's vertices
+/// (`vertices`, in the template's order): the same proxies and scan samples, so a start
+/// the rig did not make can be weighed against the rig's fit.
+pub fn score_vertices(
+    template: &Mesh,
+    vertices: &[V3],
+    surface: &ScanSurface,
+    s: &ArticulatedSettings,
+) -> f64 {
+    let x: Vec<V3> = proxies(template, s.proxies)
+        .iter()
+        .map(|p| vertices[p.vertex])
+        .collect();
+    let (a, b, _) = figures(&x, surface, &scan_samples(surface, s), surface.diagonal);
+    a + b
+}
+
+/// Every n-th scan point, about `s.scan_samples` of them.
+fn scan_samples(surface: &ScanSurface, s: &ArticulatedSettings) -> Vec<usize> {
+    let step = (surface.points.len() / s.scan_samples.max(1)).max(1);
+    (0..surface.points.len()).step_by(step).collect()
 }
 
 /// Trimmed mean of the 90% smallest values.
@@ -456,7 +514,7 @@ impl Problem<'_> {
             // priors: each joint towards its rest turn, each factor towards 1
             let norm = rows.iter().map(|r| r.3).sum::<f64>();
             for (k, &b) in params.free_bones.iter().enumerate() {
-                let v = st.pose.turns[b].scaled_axis();
+                let v = rotation_vector(&st.pose.turns[b]);
                 for c in 0..3 {
                     let a = 7 + 3 * k + c;
                     jtj[(a, a)] += s.pose_prior * norm;
@@ -477,6 +535,9 @@ impl Problem<'_> {
                 break;
             };
             let d = chol.solve(&(-jtr));
+            if !d.iter().all(|x| x.is_finite()) {
+                break;
+            }
             // a step of more than 20 degrees or a tenth of the diagonal is cut down
             let largest_turn = d.iter().take(3).map(|x| x.abs()).fold(0.0, f64::max).max(
                 (0..params.free_bones.len())
@@ -496,28 +557,7 @@ impl Problem<'_> {
     /// to the proxies; and the share of samples within 2%.
     fn figures(&self, st: &State) -> (f64, f64, f64) {
         let (x, _) = self.prig.pose(st, false);
-        let diag = self.diag;
-        let to_scan = trimmed_mean(
-            x.par_iter()
-                .map(|p| self.surface.nearest_point(p).1 / diag)
-                .collect(),
-        );
-        let arr: Vec<[f64; 3]> = x.iter().map(|p| [p.x, p.y, p.z]).collect();
-        let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&arr);
-        let from_scan: Vec<f64> = self
-            .samples
-            .par_iter()
-            .map(|&k| {
-                let q = self.surface.points[k];
-                tree.nearest_one::<SquaredEuclidean>(&[q.x, q.y, q.z])
-                    .distance
-                    .sqrt()
-                    / diag
-            })
-            .collect();
-        let coverage =
-            from_scan.iter().filter(|&&d| d < 0.02).count() as f64 / from_scan.len().max(1) as f64;
-        (to_scan, trimmed_mean(from_scan), coverage)
+        figures(&x, self.surface, &self.samples, self.diag)
     }
 
     /// A cost for comparing poses far apart: distances both ways, each capped, so a limb
@@ -575,7 +615,7 @@ impl Problem<'_> {
                 .par_iter()
                 .filter_map(|d| {
                     let turn = Rotation3::rotation_between(&now, d)? * st.pose.turns[b];
-                    if turn.angle() > limit || (d - now).norm() < 0.2 {
+                    if rotation_angle(&turn) > limit || (d - now).norm() < 0.2 {
                         return None;
                     }
                     let mut tried = st.clone();
@@ -616,8 +656,7 @@ pub fn fit(
     s: &ArticulatedSettings,
 ) -> Articulated {
     let px = proxies(template, s.proxies);
-    let step = (surface.points.len() / s.scan_samples.max(1)).max(1);
-    let samples: Vec<usize> = (0..surface.points.len()).step_by(step).collect();
+    let samples = scan_samples(surface, s);
     let problem = Problem {
         rig,
         prig: ProxyRig::new(rig, template, &px),

@@ -362,9 +362,10 @@ pub fn calibrate_placement(
             r: rt * right.r,
             t: rt * (right.t - pod.t),
         };
-        let angle = nalgebra::Rotation3::from_matrix_unchecked(left.r * via_right.r.transpose())
-            .angle()
-            .to_degrees();
+        let angle = crate::mesh::transform::rotation_angle(
+            &nalgebra::Rotation3::from_matrix_unchecked(left.r * via_right.r.transpose()),
+        )
+        .to_degrees();
         let rotation = [0, 1, 2].map(|i| [0, 1, 2].map(|j| left.r[(i, j)]));
         let position = left.centre();
         spec.position = [position.x, position.y, position.z];

@@ -339,7 +339,7 @@ impl Posed<'_> {
             .names
             .iter()
             .zip(&self.bones)
-            .map(|(n, t)| (n.clone(), t.rotation.angle().to_degrees()))
+            .map(|(n, t)| (n.clone(), crate::mesh::transform::rotation_angle(&t.rotation).to_degrees()))
             .collect()
     }
 }

@@ -4,6 +4,42 @@
 use super::V3;
 use nalgebra::{Matrix3, Rotation3};
 
+/// The rotation's angle in [0, pi], from the sine and cosine together: nalgebra's
+/// `angle()` takes the arccosine of the trace, which is NaN when rounding puts the trace
+/// a hair above 3 (a rotation composed many times close to the identity).
+pub fn rotation_angle(r: &Rotation3<f64>) -> f64 {
+    let m = r.matrix();
+    let sin2 = V3::new(m[(2, 1)] - m[(1, 2)], m[(0, 2)] - m[(2, 0)], m[(1, 0)] - m[(0, 1)]).norm();
+    let cos2 = m[(0, 0)] + m[(1, 1)] + m[(2, 2)] - 1.0;
+    sin2.atan2(cos2)
+}
+
+/// The rotation as axis times angle (radians), finite for every rotation matrix (see
+/// [`rotation_angle`]); past about 170 degrees, where the skew part no longer fixes the
+/// axis well, through the unit quaternion.
+pub fn rotation_vector(r: &Rotation3<f64>) -> V3 {
+    let m = r.matrix();
+    let skew = V3::new(m[(2, 1)] - m[(1, 2)], m[(0, 2)] - m[(2, 0)], m[(1, 0)] - m[(0, 1)]);
+    let angle = rotation_angle(r);
+    if angle < 3.0 {
+        let s = skew.norm();
+        if s < 1e-300 {
+            return V3::zeros();
+        }
+        // skew = 2 sin(angle) axis
+        return skew * (angle / s);
+    }
+    // q and -q are the same rotation: the one with w >= 0 has its angle in [0, pi]
+    let q = nalgebra::UnitQuaternion::from_rotation_matrix(r);
+    let sign = if q.scalar() < 0.0 { -1.0 } else { 1.0 };
+    let v = q.imag() * sign;
+    let n = v.norm();
+    if n < 1e-300 {
+        return V3::zeros();
+    }
+    v * (2.0 * n.atan2(q.scalar() * sign) / n)
+}
+
 /// `x -> s R x + t`
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Similarity {
@@ -85,6 +121,30 @@ pub fn fit_similarity(src: &[V3], dst: &[V3], w: Option<&[f64]>, allow_scale: bo
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn rotation_vectors_are_finite_and_round_trip() {
+        // a turn near the identity whose rounding puts the trace a hair above 3 (as
+        // turns composed step after step do): nalgebra's angle() is NaN there
+        let mut m = nalgebra::Matrix3::<f64>::identity() * (1.0 + 4e-16);
+        m[(1, 0)] = 1e-9;
+        m[(0, 1)] = -1e-9;
+        let r = Rotation3::from_matrix_unchecked(m);
+        assert!(r.angle().is_nan(), "the case no longer shows the rounding");
+        assert!(rotation_vector(&r).iter().all(|x| x.is_finite()));
+        assert!((rotation_angle(&r) - 1e-9).abs() < 1e-15);
+        for angle in [0.0, 1e-12, 0.3, 1.5, 2.9, 3.05, 3.14, std::f64::consts::PI] {
+            for axis in [V3::x(), V3::new(1.0, -2.0, 0.5).normalize(), -V3::z()] {
+                let r = Rotation3::new(axis * angle);
+                let back = rotation_vector(&r);
+                assert!((rotation_angle(&r) - angle).abs() < 1e-9, "{angle}");
+                assert!(
+                    (Rotation3::new(back).matrix() - r.matrix()).norm() < 1e-9,
+                    "{angle} {axis:?}: {back:?}"
+                );
+            }
+        }
+    }
 
     #[test]
     fn recovers_a_known_similarity() {
