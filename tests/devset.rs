@@ -143,7 +143,10 @@ fn the_harder_set_holds_per_case() {
                 let GlobalReport::Automatic(a) = &r.report.global else {
                     panic!("{}: aligned without landmarks", c.name)
                 };
-                let art = a.articulated.as_ref().expect("the automatic rig was fitted");
+                let art = a
+                    .articulated
+                    .as_ref()
+                    .expect("the automatic rig was fitted");
                 assert_eq!(art.rig, "automatic", "{}", c.name);
                 assert!(!art.kept_limb_search, "{}: {art:?}", c.name);
             }

@@ -339,7 +339,12 @@ impl Posed<'_> {
             .names
             .iter()
             .zip(&self.bones)
-            .map(|(n, t)| (n.clone(), crate::mesh::transform::rotation_angle(&t.rotation).to_degrees()))
+            .map(|(n, t)| {
+                (
+                    n.clone(),
+                    crate::mesh::transform::rotation_angle(&t.rotation).to_degrees(),
+                )
+            })
             .collect()
     }
 }
