@@ -1186,6 +1186,21 @@ fn reviews_are_checked_and_a_rejected_result_leaves_the_export_and_the_model() {
     let (code, body) = review("r3", br#"{"verdict": "accepted"}"#, Some(token));
     assert_eq!(code, 200, "{body}");
     assert!(awaiting(&daemon).is_empty());
+    // so does one whose rig fit could not tell two placements apart (facing either way)
+    let report = d.join("data/results/r2/report.json");
+    let mut v: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
+    v["conformation"]["placement_warning"] =
+        "two placements of the rig fit almost alike (trimmed distances 1.100% and 1.150%)".into();
+    std::fs::write(&report, serde_json::to_vec(&v).unwrap()).unwrap();
+    assert_eq!(awaiting(&daemon), ["r2"]);
+    let (_, page) = daemon.get("/");
+    assert!(page.contains("id=\"awaiting-review\"") && page.contains("two placements"));
+    let (_, page) = daemon.get("/captures/r2");
+    assert!(page.contains("two placements of the rig fit"), "{page}");
+    let (code, body) = review("r2", br#"{"verdict": "accepted"}"#, Some(token));
+    assert_eq!(code, 200, "{body}");
+    assert!(awaiting(&daemon).is_empty());
 
     // rejected: shown on its page, left out of the export and the next model
     let (code, body) = review("r1", rejected, Some(token));

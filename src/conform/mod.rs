@@ -487,6 +487,9 @@ pub struct ConformReport {
     pub watertight_result: bool,
     /// set when the result is distorted far beyond what a change of posture explains
     pub distortion_warning: Option<String>,
+    /// set when two placements of the rig fit scored almost alike: the result may face
+    /// the wrong way
+    pub placement_warning: Option<String>,
     pub seconds: StageTimes,
 }
 
@@ -496,6 +499,24 @@ pub struct ConformReport {
 /// more.
 pub const DISTORTION_EDGE_STD: f64 = 0.12;
 pub const DISTORTION_AREA_STD: f64 = 0.25;
+
+/// The warning for a fit whose placements scored almost alike (the rig fit's
+/// `ambiguous`): the result may face the wrong way.
+pub fn placement_warning(global: &GlobalReport) -> Option<String> {
+    let GlobalReport::Automatic(a) = global else {
+        return None;
+    };
+    let r = a.articulated.as_ref().filter(|r| r.ambiguous)?;
+    let s: Vec<String> = r
+        .hypotheses
+        .iter()
+        .map(|h| format!("{:.3}%", (h.template_to_scan + h.scan_to_template) * 100.0))
+        .collect();
+    Some(format!(
+        "two placements of the rig fit almost alike (trimmed distances {}): check which way the result faces, or fit it by landmarks",
+        s.join(" and ")
+    ))
+}
 
 /// The warning for a result's variation against its template, if it is far above what a
 /// posture change gives.
@@ -561,19 +582,8 @@ impl std::fmt::Display for ConformReport {
         if let Some(w) = &self.distortion_warning {
             write!(f, "\nwarning: {w}")?;
         }
-        if let GlobalReport::Automatic(a) = &self.global
-            && let Some(r) = a.articulated.as_ref().filter(|r| r.ambiguous)
-        {
-            let s: Vec<String> = r
-                .hypotheses
-                .iter()
-                .map(|h| format!("{:.3}%", (h.template_to_scan + h.scan_to_template) * 100.0))
-                .collect();
-            write!(
-                f,
-                "\nwarning: two placements of the rig fit almost alike (trimmed distances {}): check which way the result faces, or fit it by landmarks",
-                s.join(" and ")
-            )?;
+        if let Some(w) = &self.placement_warning {
+            write!(f, "\nwarning: {w}")?;
         }
         Ok(())
     }
@@ -1008,6 +1018,7 @@ fn conform_on_pool(
         )));
     }
     let final_variation = fit.baseline.measure(&mesh.vertices);
+    let placement = placement_warning(&global_report);
     let report = ConformReport {
         method: opts.method,
         template_vertices: n,
@@ -1018,6 +1029,7 @@ fn conform_on_pool(
         converged,
         final_variation,
         distortion_warning: distortion_warning(&final_variation),
+        placement_warning: placement,
         folded_triangles: quality::folded_triangles(&mesh),
         matched: fin.matched,
         filled: n - fin.matched,

@@ -388,7 +388,8 @@ fn data_dir(shared: &Shared, dir: &std::path::Path) -> Api<DataDir> {
 }
 
 /// Results that await an operator's review: the newest [`REVIEW_SCAN`] finished ones
-/// whose fit warned of distortion and that nobody has accepted or rejected yet.
+/// whose fit warned (of distortion, or of a placement in doubt) and that nobody has
+/// accepted or rejected yet.
 fn awaiting_review(shared: &Shared) -> Vec<AwaitingReview> {
     let done = shared.journal().list(Some(State::Done), REVIEW_SCAN);
     let done = shared.journal_result(done).unwrap_or_default();
@@ -399,12 +400,20 @@ fn awaiting_review(shared: &Shared) -> Vec<AwaitingReview> {
                 return None;
             }
             let report = read_json(&dir, "report.json")?;
-            let warning = report["conformation"]["distortion_warning"].as_str()?;
-            Some(AwaitingReview {
+            let warnings = fit_warnings(&report["conformation"]);
+            (!warnings.is_empty()).then(|| AwaitingReview {
                 capture: j.id,
-                warning: warning.to_string(),
+                warning: warnings.join("; "),
             })
         })
+        .collect()
+}
+
+/// The warnings of a report's `conformation`: distortion, then a placement in doubt.
+fn fit_warnings(c: &serde_json::Value) -> Vec<&str> {
+    ["distortion_warning", "placement_warning"]
+        .iter()
+        .filter_map(|k| c[*k].as_str())
         .collect()
 }
 
@@ -415,7 +424,7 @@ const REVIEW_SCAN: usize = 200;
 #[derive(serde::Serialize)]
 struct AwaitingReview {
     capture: String,
-    /// the fit's distortion warning
+    /// the fit's warnings (distortion, a placement in doubt)
     warning: String,
 }
 
@@ -1060,7 +1069,7 @@ async fn capture_page(Ctx(shared): Ctx<Arc<Shared>>, Path(id): Path<String>) -> 
                 v["area"]["std"].as_f64().unwrap_or(f64::NAN)
             ),
         );
-        if let Some(w) = c["distortion_warning"].as_str() {
+        for w in fit_warnings(c) {
             row("warning", esc(w));
         }
         row("seconds", stage_table(&r["seconds"]));

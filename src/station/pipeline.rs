@@ -226,7 +226,7 @@ impl std::fmt::Display for ProcessReport {
         if let Some(w) = &self.weight {
             write!(f, "; weight {:.1} kg ({:.1}-{:.1})", w.kg, w.low, w.high)?;
         }
-        if let Some(w) = &c.distortion_warning {
+        for w in c.distortion_warning.iter().chain(&c.placement_warning) {
             write!(f, "\nwarning: {w}")?;
         }
         if let Some(e) = &self.measurement_error {
