@@ -560,34 +560,6 @@ impl Problem<'_> {
         figures(&x, self.surface, &self.samples, self.diag)
     }
 
-    /// A cost for comparing poses far apart: distances both ways, each capped, so a limb
-    /// on the wrong data costs what it misses.
-    fn cost(&self, st: &State) -> f64 {
-        let (x, _) = self.prig.pose(st, false);
-        let cap = CHAIN_SEARCH_CAP * self.diag;
-        let to_scan: f64 = x
-            .iter()
-            .zip(&self.area_w)
-            .map(|(p, w)| self.surface.nearest_point(p).1.min(cap) * w)
-            .sum::<f64>()
-            / self.area_w.iter().sum::<f64>();
-        let arr: Vec<[f64; 3]> = x.iter().map(|p| [p.x, p.y, p.z]).collect();
-        let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&arr);
-        let from_scan: f64 = self
-            .samples
-            .iter()
-            .map(|&k| {
-                let q = self.surface.points[k];
-                tree.nearest_one::<SquaredEuclidean>(&[q.x, q.y, q.z])
-                    .distance
-                    .sqrt()
-                    .min(cap)
-            })
-            .sum::<f64>()
-            / self.samples.len().max(1) as f64;
-        to_scan + from_scan
-    }
-
     /// Each limb chain's root (a bone that turns far, below one that does not) tried
     /// pointing along directions spread over the sphere within its limit; the best
     /// kept when it lowers the cost. Gauss-Newton alone leaves a limb swung far from
@@ -610,7 +582,10 @@ impl Problem<'_> {
             let Some(along) = along else { continue };
             let now = st.pose.turns[b] * along;
             let limit = bone.limit_deg.to_radians();
-            let base = self.cost(st);
+            let Some(cost) = ChainCost::new(self, st, b) else {
+                continue;
+            };
+            let base = cost.of(st);
             let best = dirs
                 .par_iter()
                 .filter_map(|d| {
@@ -620,7 +595,7 @@ impl Problem<'_> {
                     }
                     let mut tried = st.clone();
                     tried.pose.turns[b] = turn;
-                    Some((self.cost(&tried), turn))
+                    Some((cost.of(&tried), turn))
                 })
                 .min_by(|a, b| a.0.total_cmp(&b.0));
             if let Some((c, turn)) = best
@@ -629,6 +604,107 @@ impl Problem<'_> {
                 st.pose.turns[b] = turn;
             }
         }
+    }
+}
+
+/// A cost for comparing poses of one limb chain far apart: distances both ways, each
+/// capped, so a limb on the wrong data costs what it misses. Only the chain's proxies
+/// move as its root turns: the rest's share (their distances to the scan, and each scan
+/// sample's distance to them) is found once.
+struct ChainCost<'a> {
+    problem: &'a Problem<'a>,
+    /// proxies weighted on a bone of the chain
+    moving: Vec<usize>,
+    /// the other proxies' capped, area-weighted distances to the scan, summed
+    still_to_scan: f64,
+    /// per scan sample: its capped distance to the nearest proxy that does not move
+    still_from_scan: Vec<f64>,
+    cap: f64,
+    total_area: f64,
+}
+
+impl<'a> ChainCost<'a> {
+    /// For the chain rooted at bone `root`, the rest of the rig as in `st`; `None` when
+    /// no proxy moves with it.
+    fn new(problem: &'a Problem<'a>, st: &State, root: usize) -> Option<Self> {
+        let rig = problem.rig;
+        let mut in_chain = vec![false; rig.bones.len()];
+        for b in 0..rig.bones.len() {
+            // parents are listed first
+            in_chain[b] = b == root || rig.bones[b].parent.is_some_and(|p| in_chain[p]);
+        }
+        let (x, _) = problem.prig.pose(st, false);
+        let (moving, still): (Vec<usize>, Vec<usize>) = (0..x.len()).partition(|&i| {
+            problem.prig.weights[i]
+                .iter()
+                .any(|&(b, _)| in_chain[b as usize])
+        });
+        if moving.is_empty() {
+            return None;
+        }
+        let cap = CHAIN_SEARCH_CAP * problem.diag;
+        let still_to_scan = still
+            .par_iter()
+            .map(|&i| problem.surface.nearest_point(&x[i]).1.min(cap) * problem.area_w[i])
+            .sum::<f64>();
+        let still_from_scan = if still.is_empty() {
+            vec![cap; problem.samples.len()]
+        } else {
+            let arr: Vec<[f64; 3]> = still.iter().map(|&i| [x[i].x, x[i].y, x[i].z]).collect();
+            let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&arr);
+            problem
+                .samples
+                .par_iter()
+                .map(|&k| {
+                    let q = problem.surface.points[k];
+                    tree.nearest_one::<SquaredEuclidean>(&[q.x, q.y, q.z])
+                        .distance
+                        .sqrt()
+                        .min(cap)
+                })
+                .collect()
+        };
+        Some(ChainCost {
+            problem,
+            moving,
+            still_to_scan,
+            still_from_scan,
+            cap,
+            total_area: problem.area_w.iter().sum(),
+        })
+    }
+
+    /// The cost of `st`, which differs from the state this was made for only in the
+    /// chain's turns.
+    fn of(&self, st: &State) -> f64 {
+        let p = self.problem;
+        let (x, _) = p.prig.pose(st, false);
+        let to_scan = self.still_to_scan
+            + self
+                .moving
+                .iter()
+                .map(|&i| p.surface.nearest_point(&x[i]).1.min(self.cap) * p.area_w[i])
+                .sum::<f64>();
+        let arr: Vec<[f64; 3]> = self
+            .moving
+            .iter()
+            .map(|&i| [x[i].x, x[i].y, x[i].z])
+            .collect();
+        let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&arr);
+        let from_scan: f64 = p
+            .samples
+            .iter()
+            .zip(&self.still_from_scan)
+            .map(|(&k, &still)| {
+                let q = p.surface.points[k];
+                let d = tree
+                    .nearest_one::<SquaredEuclidean>(&[q.x, q.y, q.z])
+                    .distance
+                    .sqrt();
+                d.min(still)
+            })
+            .sum::<f64>();
+        to_scan / self.total_area + from_scan / p.samples.len().max(1) as f64
     }
 }
 
