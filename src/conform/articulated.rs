@@ -220,8 +220,8 @@ impl<'a> ProxyRig<'a> {
         }
     }
 
-    /// Positions (and, when asked, normals) of the proxies in `state`.
-    fn pose(&self, st: &State, with_normals: bool) -> (Vec<V3>, Vec<V3>) {
+    /// The bones' transforms in `st` (shape factors applied to the joints).
+    fn transforms(&self, st: &State) -> Vec<(nalgebra::Matrix3<f64>, V3)> {
         let mut heads: Vec<V3> = self.rig.bones.iter().map(|b| b.head).collect();
         for (s, &f) in self.rig.shapes.iter().zip(&st.pose.factors) {
             if f != 1.0 {
@@ -230,32 +230,62 @@ impl<'a> ProxyRig<'a> {
                 }
             }
         }
-        let xf = self.rig.bone_transforms(&heads, &st.pose.turns);
+        self.rig
+            .bone_transforms(&heads, &st.pose.turns)
+            .into_iter()
+            .map(|(r, t)| (*r.matrix(), t))
+            .collect()
+    }
+
+    /// Proxy `i`'s position (before the placement) and, when asked, its normal.
+    fn pose_one(
+        &self,
+        st: &State,
+        xf: &[(nalgebra::Matrix3<f64>, V3)],
+        i: usize,
+        with_normal: bool,
+    ) -> (V3, V3) {
+        let mut p = self.rest[i];
+        for (k, &f) in st.pose.factors.iter().enumerate() {
+            if f != 1.0 {
+                p += self.shapes[k][i] * (f - 1.0);
+            }
+        }
+        let mut q = V3::zeros();
+        let mut m = V3::zeros();
+        for &(b, w) in self.weights[i] {
+            let (r, t) = &xf[b as usize];
+            q += (r * p + t) * w;
+            if with_normal {
+                m += r * self.normals[i] * w;
+            }
+        }
+        (q, m)
+    }
+
+    /// Positions (and, when asked, normals) of the proxies in `state`.
+    fn pose(&self, st: &State, with_normals: bool) -> (Vec<V3>, Vec<V3>) {
+        let xf = self.transforms(st);
         let sim = &st.placement;
         let mut x = Vec::with_capacity(self.rest.len());
         let mut n = Vec::with_capacity(if with_normals { self.rest.len() } else { 0 });
         for i in 0..self.rest.len() {
-            let mut p = self.rest[i];
-            for (k, &f) in st.pose.factors.iter().enumerate() {
-                if f != 1.0 {
-                    p += self.shapes[k][i] * (f - 1.0);
-                }
-            }
-            let mut q = V3::zeros();
-            let mut m = V3::zeros();
-            for &(b, w) in self.weights[i] {
-                let (r, t) = &xf[b as usize];
-                q += (r * p + t) * w;
-                if with_normals {
-                    m += r * self.normals[i] * w;
-                }
-            }
+            let (q, m) = self.pose_one(st, &xf, i, with_normals);
             x.push(sim.apply(&q));
             if with_normals {
                 n.push((sim.rotation * m).try_normalize(1e-12).unwrap_or(m));
             }
         }
         (x, n)
+    }
+
+    /// Positions of the proxies `which` in `state`.
+    fn pose_some(&self, st: &State, which: &[usize]) -> Vec<V3> {
+        let xf = self.transforms(st);
+        which
+            .iter()
+            .map(|&i| st.placement.apply(&self.pose_one(st, &xf, i, false).0))
+            .collect()
     }
 }
 
@@ -481,31 +511,47 @@ impl Problem<'_> {
                 a3[i] += plane + nalgebra::Matrix3::identity() * (w * p2p);
                 b3[i] += plane * e + e * (w * p2p);
             }
-            let mut jtj = DMatrix::<f64>::zeros(np, np);
-            let mut jtr = DVector::<f64>::zeros(np);
-            let mut nz: Vec<usize> = Vec::with_capacity(np);
-            let mut jn: Vec<V3> = Vec::with_capacity(np);
-            for i in 0..x.len() {
-                if a3[i] == nalgebra::Matrix3::zeros() {
-                    continue;
-                }
-                nz.clear();
-                jn.clear();
-                for (p, col) in cols.iter().enumerate() {
-                    let c = col[i];
-                    if c != V3::zeros() {
-                        nz.push(p);
-                        jn.push(c / diag);
-                    }
-                }
-                let aj: Vec<V3> = jn.iter().map(|c| a3[i] * c).collect();
-                for (u, &pa) in nz.iter().enumerate() {
-                    jtr[pa] += jn[u].dot(&b3[i]);
-                    for (v, &pb) in nz.iter().enumerate().skip(u) {
-                        jtj[(pa, pb)] += jn[u].dot(&aj[v]);
-                    }
-                }
-            }
+            // summed per thread over its share of the proxies (upper triangle, row
+            // major), then added up
+            let zero = || (vec![0.0; np * np], vec![0.0; np]);
+            let (upper, jtr) = (0..x.len())
+                .into_par_iter()
+                .filter(|&i| a3[i] != nalgebra::Matrix3::zeros())
+                .fold(
+                    || (zero(), Vec::with_capacity(np), Vec::with_capacity(np)),
+                    |((mut m, mut r), mut nz, mut jn): (
+                        (Vec<f64>, Vec<f64>),
+                        Vec<usize>,
+                        Vec<V3>,
+                    ),
+                     i| {
+                        nz.clear();
+                        jn.clear();
+                        for (p, col) in cols.iter().enumerate() {
+                            let c = col[i];
+                            if c != V3::zeros() {
+                                nz.push(p);
+                                jn.push(c / diag);
+                            }
+                        }
+                        for (u, &pa) in nz.iter().enumerate() {
+                            r[pa] += jn[u].dot(&b3[i]);
+                            let aj = a3[i] * jn[u];
+                            for (v, &pb) in nz.iter().enumerate().skip(u) {
+                                m[pa * np + pb] += jn[v].dot(&aj);
+                            }
+                        }
+                        ((m, r), nz, jn)
+                    },
+                )
+                .map(|(sums, _, _)| sums)
+                .reduce(zero, |(mut m, mut r), (m2, r2)| {
+                    m.iter_mut().zip(&m2).for_each(|(a, b)| *a += b);
+                    r.iter_mut().zip(&r2).for_each(|(a, b)| *a += b);
+                    (m, r)
+                });
+            let mut jtj = DMatrix::<f64>::from_fn(np, np, |a, b| upper[a * np + b]);
+            let mut jtr = DVector::<f64>::from_vec(jtr);
             for a in 0..np {
                 for b in 0..a {
                     jtj[(a, b)] = jtj[(b, a)];
@@ -678,25 +724,32 @@ impl<'a> ChainCost<'a> {
     /// chain's turns.
     fn of(&self, st: &State) -> f64 {
         let p = self.problem;
-        let (x, _) = p.prig.pose(st, false);
+        let x = p.prig.pose_some(st, &self.moving);
         let to_scan = self.still_to_scan
             + self
                 .moving
                 .iter()
-                .map(|&i| p.surface.nearest_point(&x[i]).1.min(self.cap) * p.area_w[i])
+                .zip(&x)
+                .map(|(&i, q)| p.surface.nearest_point(q).1.min(self.cap) * p.area_w[i])
                 .sum::<f64>();
-        let arr: Vec<[f64; 3]> = self
-            .moving
-            .iter()
-            .map(|&i| [x[i].x, x[i].y, x[i].z])
-            .collect();
+        let arr: Vec<[f64; 3]> = x.iter().map(|q| [q.x, q.y, q.z]).collect();
         let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&arr);
+        // a sample farther from the chain's bounding box than from the still proxies
+        // keeps its distance: no query
+        let (lo, hi) = x.iter().fold(
+            (V3::repeat(f64::INFINITY), V3::repeat(f64::NEG_INFINITY)),
+            |(lo, hi), q| (lo.inf(q), hi.sup(q)),
+        );
         let from_scan: f64 = p
             .samples
             .iter()
             .zip(&self.still_from_scan)
             .map(|(&k, &still)| {
                 let q = p.surface.points[k];
+                let outside = (lo - q).sup(&(q - hi)).sup(&V3::zeros());
+                if outside.norm_squared() >= still * still {
+                    return still;
+                }
                 let d = tree
                     .nearest_one::<SquaredEuclidean>(&[q.x, q.y, q.z])
                     .distance
