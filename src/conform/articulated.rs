@@ -387,6 +387,10 @@ fn scan_samples(surface: &ScanSurface, s: &ArticulatedSettings) -> Vec<usize> {
     (0..surface.points.len()).step_by(step).collect()
 }
 
+/// One thread's share of the normal equations (upper triangle of J'AJ row major, and
+/// J'b), with its scratch: the parameters a proxy depends on and their columns.
+type Partial = ((Vec<f64>, Vec<f64>), Vec<usize>, Vec<V3>);
+
 /// Trimmed mean of the 90% smallest values.
 fn trimmed_mean(mut d: Vec<f64>) -> f64 {
     if d.is_empty() {
@@ -519,12 +523,7 @@ impl Problem<'_> {
                 .filter(|&i| a3[i] != nalgebra::Matrix3::zeros())
                 .fold(
                     || (zero(), Vec::with_capacity(np), Vec::with_capacity(np)),
-                    |((mut m, mut r), mut nz, mut jn): (
-                        (Vec<f64>, Vec<f64>),
-                        Vec<usize>,
-                        Vec<V3>,
-                    ),
-                     i| {
+                    |((mut m, mut r), mut nz, mut jn): Partial, i| {
                         nz.clear();
                         jn.clear();
                         for (p, col) in cols.iter().enumerate() {
