@@ -484,8 +484,12 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
                 eprintln!("wrote {}", p.display());
             }
         }
-        Cmd::Export { results, out } => {
-            if let Some(p) = &out {
+        Cmd::Export {
+            results,
+            out,
+            repeatability,
+        } => {
+            for p in out.iter().chain(&repeatability) {
                 conformd::files::refuse_inside(p, &results, "the results folder")?;
             }
             let export = jobs::export_csv(&results)?;
@@ -496,6 +500,15 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
                 eprintln!(
                     "{} rejected result(s) left out (review.json)",
                     export.rejected.len()
+                );
+            }
+            if let Some(p) = &repeatability {
+                let csv = conformd::station::export::spreads_csv(&export.subjects);
+                conformd::files::write_atomic(p, csv.as_bytes())?;
+                eprintln!(
+                    "wrote {} ({} subject(s) with two results or more)",
+                    p.display(),
+                    export.subjects.len()
                 );
             }
             let csv = export.csv;

@@ -95,6 +95,11 @@ fn station(dir: &Path, port: u16, extra: &str, daemon: &[(&str, &str)]) -> PathB
 
 /// Copies a simulated set into `root` under a new id.
 fn drop_set(from: &Path, root: &Path, id: &str) -> PathBuf {
+    drop_set_of(from, root, id, None)
+}
+
+/// [`drop_set`] with the manifest naming `subject`.
+fn drop_set_of(from: &Path, root: &Path, id: &str, subject: Option<&str>) -> PathBuf {
     let tmp = root.join(format!(".{id}.copying"));
     std::fs::create_dir_all(&tmp).unwrap();
     for e in std::fs::read_dir(from).unwrap() {
@@ -103,6 +108,9 @@ fn drop_set(from: &Path, root: &Path, id: &str) -> PathBuf {
             let mut v: serde_json::Value =
                 serde_json::from_slice(&std::fs::read(e.path()).unwrap()).unwrap();
             v["id"] = id.into();
+            if let Some(s) = subject {
+                v["subject"] = s.into();
+            }
             std::fs::write(tmp.join("manifest.json"), serde_json::to_vec(&v).unwrap()).unwrap();
         } else {
             std::fs::copy(e.path(), tmp.join(e.file_name())).unwrap();
@@ -1111,8 +1119,9 @@ fn reviews_are_checked_and_a_rejected_result_leaves_the_export_and_the_model() {
     let cfg = station(d, port, "", &[("token", &quoted)]);
     let captures = d.join("data/captures");
     std::fs::create_dir_all(&captures).unwrap();
+    // one sow in four postures
     for (i, set) in sets.iter().take(4).enumerate() {
-        drop_set(set, &captures, &format!("r{i}"));
+        drop_set_of(set, &captures, &format!("r{i}"), Some("sow-9"));
     }
     let s = drop_set(&sets[0], &captures, "broken");
     let img = s.join("pod1-left.png");
@@ -1230,6 +1239,78 @@ fn reviews_are_checked_and_a_rejected_result_leaves_the_export_and_the_model() {
         "{stdout}"
     );
     assert!(String::from_utf8_lossy(&out.stderr).contains("1 rejected result(s) left out"));
+    // how well the sow's measurements repeat, over the three results left: on its page,
+    // through the API and in the export
+    let (code, body) = daemon.get("/api/subjects/sow-9");
+    assert_eq!(code, 200, "{body}");
+    let v: serde_json::Value = serde_json::from_str(&body).unwrap();
+    assert_eq!(v["captures"].as_array().unwrap().len(), 4, "{body}");
+    let rep = &v["repeatability"];
+    assert_eq!(rep["results"], 3, "r1 is rejected: {body}");
+    for key in ["raw", "posture_free"] {
+        let girth = rep[key]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|m| m["name"] == "heart_girth")
+            .unwrap_or_else(|| panic!("{key}: {body}"));
+        let (mean, cv) = (
+            girth["mean"].as_f64().unwrap(),
+            girth["cv"].as_f64().unwrap(),
+        );
+        assert!((1.0..1.6).contains(&mean), "{key}: heart girth {mean}");
+        // the same generic pig in four postures: its girth varies, but not by much
+        assert!(cv > 0.0 && cv < 0.05, "{key}: heart girth CV {cv}");
+        assert_eq!(girth["count"], 3);
+    }
+    let (_, page) = daemon.get("/subjects/sow-9");
+    assert!(
+        page.contains("id=\"repeatability\"")
+            && page.contains("Over 3 results")
+            && page.contains("<td>heart_girth</td>"),
+        "{page}"
+    );
+    let spreads = d.join("repeatability.csv");
+    let out = Command::new(BIN)
+        .args(["export", "--results"])
+        .arg(d.join("data/results"))
+        .arg("--repeatability")
+        .arg(&spreads)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let csv = std::fs::read_to_string(&spreads).unwrap();
+    let mut lines = csv.lines();
+    assert_eq!(
+        lines.next(),
+        Some(
+            "subject,measurement,unit,results,mean,sd,cv,mean_posture_free,sd_posture_free,cv_posture_free"
+        )
+    );
+    let girth: Vec<&str> = csv
+        .lines()
+        .find(|l| l.starts_with("sow-9,heart_girth,"))
+        .unwrap_or_else(|| panic!("{csv}"))
+        .split(',')
+        .collect();
+    assert_eq!(girth[3], "3", "{csv}");
+    let api_mean = rep["raw"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|m| m["name"] == "heart_girth")
+        .unwrap()["mean"]
+        .as_f64()
+        .unwrap();
+    assert!(
+        (girth[4].parse::<f64>().unwrap() - api_mean).abs() < 1e-5,
+        "{csv}"
+    );
+    assert!(!girth[7].is_empty(), "posture-free figures: {csv}");
     let model = d.join("data/model.json");
     let _ = std::fs::remove_file(&model);
     let (code, body) = request("POST", &daemon.url("/api/model/rebuild"), None, Some(token));

@@ -373,6 +373,10 @@ pub enum Cmd {
         results: PathBuf,
         #[arg(long)]
         out: Option<PathBuf>,
+        /// also write, per subject with two results or more, how well each
+        /// measurement repeats over them (mean, SD, CV; raw and posture-free) as CSV
+        #[arg(long, value_name = "CSV")]
+        repeatability: Option<PathBuf>,
     },
     /// Statistical shape model over conformed meshes.
     Model {

@@ -35,6 +35,7 @@ pub fn router(shared: Arc<Shared>) -> Router {
         .route("/captures/{id}", get(capture_page))
         .route("/subjects/{tag}", get(subject_page))
         .route("/subjects/{tag}/history.png", get(subject_plot))
+        .route("/api/subjects/{tag}", get(subject_api))
         .route("/api/export.csv", get(export))
         .route("/healthz", get(|| async { "ok\n" }))
         .route("/metrics", get(metrics))
@@ -1293,8 +1294,76 @@ async fn subject_page(Ctx(shared): Ctx<Arc<Shared>>, Path(tag): Path<String>) ->
                 .map_or(String::new(), |v| format!("{v:.1}"))
         );
     }
-    h.push_str("</table><p><a href=\"/api/export.csv\">all results (CSV)</a></p></body></html>");
+    h.push_str("</table>");
+    match subject_repeatability(&shared, &results) {
+        Some(r) => {
+            let _ = write!(
+                h,
+                "<h2>Repeatability</h2><p>Over {} results (rejected ones left out): each measurement's mean, standard deviation and coefficient of variation, as measured and posture-free.</p><table id=\"repeatability\"><tr><th>measurement</th><th>mean</th><th>SD</th><th>CV</th><th>posture-free mean</th><th>SD</th><th>CV</th></tr>",
+                r.results
+            );
+            for m in &r.raw {
+                let free = r.posture_free.iter().find(|p| p.name == m.name);
+                let cell = |v: Option<String>| v.unwrap_or_default();
+                let _ = write!(
+                    h,
+                    "<tr><td>{n}</td><td>{:.4} {u}</td><td>{:.4}</td><td>{:.2}%</td><td>{}</td><td>{}</td><td>{}</td></tr>",
+                    m.mean,
+                    m.sd,
+                    100.0 * m.cv,
+                    cell(free.map(|p| format!("{:.4} {}", p.mean, esc(&p.unit)))),
+                    cell(free.map(|p| format!("{:.4}", p.sd))),
+                    cell(free.map(|p| format!("{:.2}%", 100.0 * p.cv))),
+                    n = esc(&m.name),
+                    u = esc(&m.unit),
+                );
+            }
+            h.push_str("</table>");
+        }
+        None => h.push_str(
+            "<h2>Repeatability</h2><p id=\"repeatability\">Needs two results or more that an operator has not rejected.</p>",
+        ),
+    }
+    h.push_str("<p><a href=\"/api/export.csv\">all results (CSV)</a></p></body></html>");
     Ok(Html(h))
+}
+
+/// How well the subject's measurements repeat over `results`, the rejected ones left
+/// out; `None` with fewer than two left.
+fn subject_repeatability(
+    shared: &Shared,
+    results: &[(Job, serde_json::Value)],
+) -> Option<crate::station::export::SubjectSpread> {
+    let kept: Vec<serde_json::Value> = results
+        .iter()
+        .filter(|(j, _)| {
+            let review = j
+                .result
+                .as_ref()
+                .and_then(|r| data_dir(shared, r).ok())
+                .and_then(|d| crate::station::review::read_in(&d).ok().flatten());
+            !review.is_some_and(|r| r.verdict == Verdict::Rejected)
+        })
+        .map(|(_, r)| r.clone())
+        .collect();
+    crate::station::export::subject_spreads(&kept)
+        .into_iter()
+        .next()
+}
+
+/// `GET /api/subjects/{tag}`: the subject's finished captures (oldest first) and how
+/// well its measurements repeat over them.
+async fn subject_api(
+    Ctx(shared): Ctx<Arc<Shared>>,
+    Path(tag): Path<String>,
+) -> Api<axum::Json<serde_json::Value>> {
+    let results = subject_results(&shared, &tag)?;
+    let captures: Vec<&str> = results.iter().map(|(j, _)| j.id.as_str()).collect();
+    Ok(axum::Json(serde_json::json!({
+        "subject": tag,
+        "captures": captures,
+        "repeatability": subject_repeatability(&shared, &results),
+    })))
 }
 
 async fn subject_plot(Ctx(shared): Ctx<Arc<Shared>>, Path(tag): Path<String>) -> Api<Response> {
