@@ -955,7 +955,7 @@ fn every_folder_entry_the_daemon_will_not_take_is_named_with_its_reason() {
     )
     .unwrap();
     let t = Instant::now();
-    let found = scan_folder(root, None, |_| false);
+    let found = scan_folder(root, None, |_| false, |_| false);
     assert!(t.elapsed() < Duration::from_secs(2), "{:?}", t.elapsed());
     let ids: Vec<&str> = found.sets.iter().map(|(n, _)| n.as_str()).collect();
     assert_eq!(ids, ["good"]);
@@ -986,12 +986,48 @@ fn every_folder_entry_the_daemon_will_not_take_is_named_with_its_reason() {
     )
     .unwrap();
     std::fs::write(p.join("a.png"), "part").unwrap();
-    let waiting = scan_folder(fresh.path(), Some(SETTLE), |_| false);
+    let waiting = scan_folder(fresh.path(), Some(SETTLE), |_| false, |_| false);
     assert!(waiting.sets.is_empty() && waiting.settling, "{waiting:?}");
     std::thread::sleep(SETTLE + Duration::from_millis(200));
-    let settled = scan_folder(fresh.path(), Some(SETTLE), |_| false);
+    let settled = scan_folder(fresh.path(), Some(SETTLE), |_| false, |_| false);
     assert_eq!(settled.sets.len(), 1, "{settled:?}");
     assert!(!settled.settling);
+
+    // a set written elsewhere and renamed in (the watcher saw the rename) is taken at
+    // once; one written into after its rename still waits
+    let drop = tempfile::tempdir().unwrap();
+    let write_set = |dir: &Path| {
+        std::fs::create_dir(dir).unwrap();
+        std::fs::write(
+            dir.join("manifest.json"),
+            r#"{"cameras": [{"file": "a.png"}]}"#,
+        )
+        .unwrap();
+        std::fs::write(dir.join("a.png"), "whole").unwrap();
+    };
+    let staging = drop.path().join(".whole.copying");
+    write_set(&staging);
+    // past the file system's clock tick: the rename is later than every write
+    std::thread::sleep(Duration::from_millis(30));
+    std::fs::rename(&staging, drop.path().join("whole")).unwrap();
+    let now = scan_folder(drop.path(), Some(SETTLE), |n| n == "whole", |_| false);
+    assert_eq!(now.sets.len(), 1, "renamed in whole: taken at once {now:?}");
+    let unseen = scan_folder(drop.path(), Some(SETTLE), |_| false, |_| false);
+    assert!(
+        unseen.sets.is_empty() && unseen.settling,
+        "no rename seen: it settles {unseen:?}"
+    );
+    let staging = drop.path().join(".late.copying");
+    write_set(&staging);
+    std::thread::sleep(Duration::from_millis(30));
+    std::fs::rename(&staging, drop.path().join("late")).unwrap();
+    std::thread::sleep(Duration::from_millis(30));
+    std::fs::write(drop.path().join("late/a.png"), "written after the rename").unwrap();
+    let late = scan_folder(drop.path(), Some(SETTLE), |_| true, |n| n == "whole");
+    assert!(
+        late.sets.is_empty() && late.settling,
+        "written into after its rename: it settles {late:?}"
+    );
 }
 
 #[test]

@@ -113,6 +113,9 @@ pub struct Shared {
     pub refused: Mutex<BTreeMap<String, String>>,
     /// an incoming set waits for its files to settle: scan again soon
     settling: AtomicBool,
+    /// folders the watcher saw renamed into `incoming/` (a set that came whole need not
+    /// settle)
+    moved_in: Arc<Mutex<std::collections::HashSet<String>>>,
     /// capture ids the journal is known to have
     known_ids: Mutex<std::collections::HashSet<String>>,
     /// something changed (a capture, a finished job, a request): scan and dispatch
@@ -221,6 +224,7 @@ impl Shared {
             waiting_handover: Default::default(),
             refused: Default::default(),
             settling: AtomicBool::new(false),
+            moved_in: Default::default(),
             known_ids: Default::default(),
             wake: Default::default(),
             abort: Default::default(),
@@ -632,7 +636,25 @@ fn watch(
     hints: tokio::sync::mpsc::Sender<()>,
 ) -> Option<notify::RecommendedWatcher> {
     use notify::Watcher;
-    let handler = move |_: notify::Result<notify::Event>| {
+    use notify::event::{EventKind, ModifyKind, RenameMode};
+    let (moved_in, incoming) = (shared.moved_in.clone(), shared.incoming_dir());
+    let handler = move |e: notify::Result<notify::Event>| {
+        if let Ok(e) = &e
+            && matches!(
+                e.kind,
+                EventKind::Modify(ModifyKind::Name(RenameMode::To | RenameMode::Both))
+            )
+            && let Some(to) = e.paths.last()
+            && to.parent() == Some(incoming.as_path())
+            && let Some(name) = to.file_name()
+        {
+            let mut m = moved_in.lock().unwrap_or_else(|p| p.into_inner());
+            // names of sets never taken (refused) are not kept for ever
+            if m.len() >= MOVED_IN_KEPT {
+                m.clear();
+            }
+            m.insert(name.to_string_lossy().into_owned());
+        }
         let _ = hints.try_send(());
     };
     let mut w = match notify::recommended_watcher(handler) {
@@ -650,6 +672,9 @@ fn watch(
     }
     Some(w)
 }
+
+/// At most this many names of folders renamed into `incoming/` are remembered.
+const MOVED_IN_KEPT: usize = 10_000;
 
 fn watch_error(what: &str, e: &notify::Error) -> String {
     let limit = matches!(e.kind, notify::ErrorKind::MaxFilesWatch)
@@ -669,7 +694,14 @@ fn watch_error(what: &str, e: &notify::Error) -> String {
 pub fn scan(shared: &Shared) {
     let captures = shared.captures_dir();
     let incoming = shared.incoming_dir();
-    let from_incoming = sets::scan_folder(&incoming, Some(sets::SETTLE), |_| false);
+    let moved_in = |name: &str| {
+        shared
+            .moved_in
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .contains(name)
+    };
+    let from_incoming = sets::scan_folder(&incoming, Some(sets::SETTLE), moved_in, |_| false);
     let mut refused: BTreeMap<String, String> = from_incoming
         .refused
         .into_iter()
@@ -677,6 +709,11 @@ pub fn scan(shared: &Shared) {
         .collect();
     for (name, dir) in from_incoming.sets {
         let to = captures.join(&name);
+        shared
+            .moved_in
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .remove(&name);
         match crate::files::rename_no_replace(&dir, &to) {
             Ok(()) => info!(capture = %name, "taken in from incoming/"),
             Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
@@ -706,26 +743,31 @@ pub fn scan(shared: &Shared) {
     // station holds many thousands. While the journal cannot be reached, every set it
     // was not known to have is a candidate, handed over when it is back.
     let mut online = true;
-    let in_captures = sets::scan_folder(&captures, None, |name| {
-        if seen.contains(name) {
-            return true;
-        }
-        if !online {
-            return false;
-        }
-        match j.contains(name) {
-            Ok(true) => {
-                seen.insert(name.to_string());
-                true
+    let in_captures = sets::scan_folder(
+        &captures,
+        None,
+        |_| false,
+        |name| {
+            if seen.contains(name) {
+                return true;
             }
-            Ok(false) => false,
-            Err(e) => {
-                shared.journal_result::<()>(Err(e));
-                online = false;
-                false
+            if !online {
+                return false;
             }
-        }
-    });
+            match j.contains(name) {
+                Ok(true) => {
+                    seen.insert(name.to_string());
+                    true
+                }
+                Ok(false) => false,
+                Err(e) => {
+                    shared.journal_result::<()>(Err(e));
+                    online = false;
+                    false
+                }
+            }
+        },
+    );
     refused.extend(
         in_captures
             .refused

@@ -26,10 +26,12 @@ pub struct Found {
 
 /// Scans `root`. Entries `skip` names (sets the journal already has) are passed over
 /// before anything is read; with `settle`, a complete set whose files changed within
-/// that time waits.
+/// that time waits, unless `moved_in` says the folder was renamed into `root` and none
+/// of its files changed after that (a set that came whole).
 pub fn scan_folder(
     root: &Path,
     settle: Option<Duration>,
+    moved_in: impl Fn(&str) -> bool,
     mut skip: impl FnMut(&str) -> bool,
 ) -> Found {
     let mut found = Found::default();
@@ -53,7 +55,7 @@ pub fn scan_folder(
         if skip(&name) {
             continue;
         }
-        match look_at(&e.path(), settle, now) {
+        match look_at(&e.path(), settle, moved_in(&name), now) {
             Look::Set => found.sets.push((name, e.path())),
             Look::Waiting => {}
             Look::Settling => found.settling = true,
@@ -87,7 +89,7 @@ enum Look {
     Refused(String),
 }
 
-fn look_at(dir: &Path, settle: Option<Duration>, now: SystemTime) -> Look {
+fn look_at(dir: &Path, settle: Option<Duration>, moved_in: bool, now: SystemTime) -> Look {
     let Ok(meta) = std::fs::symlink_metadata(dir) else {
         return Look::Waiting; // gone between listing and looking
     };
@@ -138,13 +140,17 @@ fn look_at(dir: &Path, settle: Option<Duration>, now: SystemTime) -> Look {
         })
         .unwrap_or_default();
     let mut newest = age(&mm);
+    let mut last_write = mm.modified().ok();
     let mut missing = Vec::new();
     for f in &files {
         if crate::paths::check_plain_name("file", f).is_err() {
             continue; // the job refuses it, naming it
         }
         match std::fs::symlink_metadata(dir.join(f)) {
-            Ok(m) => newest = newest.min(age(&m)),
+            Ok(m) => {
+                newest = newest.min(age(&m));
+                last_write = last_write.max(m.modified().ok());
+            }
             Err(_) => missing.push(f.as_str()),
         }
     }
@@ -158,8 +164,26 @@ fn look_at(dir: &Path, settle: Option<Duration>, now: SystemTime) -> Look {
         }
         return Look::Waiting;
     }
-    if settle.is_some_and(|s| newest < s) {
+    if settle.is_some_and(|s| newest < s) && !(moved_in && written_before_move(&meta, last_write)) {
         return Look::Settling;
     }
     Look::Set
+}
+
+/// Whether every file was last written no later than the folder changed last (its
+/// ctime): for a folder renamed into place, the rename. A file written into it after the
+/// rename is newer (creating one also moves the folder's ctime, but its writes come
+/// after).
+fn written_before_move(dir: &std::fs::Metadata, last_write: Option<SystemTime>) -> bool {
+    use std::os::unix::fs::MetadataExt;
+    let Ok(nanos) = u32::try_from(dir.ctime_nsec()) else {
+        return false;
+    };
+    let Some(changed) = u64::try_from(dir.ctime())
+        .ok()
+        .map(|s| SystemTime::UNIX_EPOCH + Duration::new(s, nanos))
+    else {
+        return false;
+    };
+    last_write.is_some_and(|w| w <= changed)
 }
