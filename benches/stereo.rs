@@ -68,6 +68,7 @@ fn main() {
                 &images[0].pixels,
                 &images[1].pixels,
                 &opts.sgbm,
+                None,
                 &mut r,
             )
             .unwrap();

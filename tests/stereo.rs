@@ -434,7 +434,15 @@ fn subpixel_refinement_cuts_depth_noise_on_a_wall() {
             subpixel_steps: steps,
             ..Default::default()
         };
-        let g = pod_grid(rect, &l.pixels, &r.pixels, &o, &mut PodReport::default()).unwrap();
+        let g = pod_grid(
+            rect,
+            &l.pixels,
+            &r.pixels,
+            &o,
+            None,
+            &mut PodReport::default(),
+        )
+        .unwrap();
         let d: Vec<f64> = g
             .valid()
             .filter(|p| (p.y + 0.05).abs() < 0.05 && p.x.abs() < 0.9 && p.z.abs() < 0.9)
@@ -513,6 +521,69 @@ fn disparity_range_follows_the_working_volume() {
         cov * 100.0,
         fixed_cov * 100.0
     );
+}
+
+#[test]
+fn a_working_volume_narrower_than_the_view_is_matched_in_its_window_alone() {
+    // the example rig with its working volume drawn 5 cm around the pig: each pod
+    // matches only the part of its images the volume can appear in, and the scan is the
+    // one the whole images give
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let mut rig =
+        RigFile::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("config/rig.example.toml"))
+            .unwrap();
+    let wide = d.join("wide.toml");
+    std::fs::write(&wide, toml::to_string(&rig).unwrap()).unwrap();
+    let sets = conformd::jobs::simulate(&wide, "pig", "swing=6", 1, 2.0, &d.join("sim")).unwrap();
+    let truth = read_mesh(&sets[0].join("truth.ply")).unwrap();
+    let (mut lo, mut hi) = ([f64::MAX; 3], [f64::MIN; 3]);
+    for p in &truth.vertices {
+        for k in 0..3 {
+            lo[k] = lo[k].min(p[k] - 0.05);
+            hi[k] = hi[k].max(p[k] + 0.05);
+        }
+    }
+    rig.working_volume = Some([lo, hi]);
+    let tight = d.join("tight.toml");
+    std::fs::write(&tight, toml::to_string(&rig).unwrap()).unwrap();
+    let mut station = conformd::stereo::rig::Reconstruction::load(&tight, None).unwrap();
+    let mut figures = Vec::new();
+    for window in [true, false] {
+        station.options.volume_window = window;
+        let out = d.join(format!("scan-{window}.ply"));
+        let r =
+            conformd::jobs::reconstruct_with(&mut station, &sets[0], &out, None, false).unwrap();
+        let scan = read_mesh(&out).unwrap();
+        let (mean, p95) = accuracy(&scan, &truth);
+        let cov = coverage(&scan, &truth, &tight);
+        let windows: Vec<Option<[i32; 4]>> = r.pods.iter().map(|p| p.window).collect();
+        eprintln!(
+            "window {window}: {windows:?}, {} points, mean {:.3}% p95 {:.3}%, coverage {:.1}%, disparity {:?} s",
+            scan.vertices.len(),
+            mean * 100.0,
+            p95 * 100.0,
+            cov * 100.0,
+            r.pods
+                .iter()
+                .map(|p| p.seconds_disparity)
+                .collect::<Vec<_>>()
+        );
+        if window {
+            for w in &windows {
+                let [_, _, ww, wh] = w.expect("a window smaller than the image");
+                assert!(ww * wh < 1280 * 960 * 9 / 10, "{w:?}");
+            }
+        } else {
+            assert!(windows.iter().all(Option::is_none));
+        }
+        figures.push((scan.vertices.len() as f64, mean, p95, cov));
+    }
+    let (a, b) = (figures[0], figures[1]);
+    assert!((a.0 / b.0 - 1.0).abs() < 0.01, "points {} vs {}", a.0, b.0);
+    assert!((a.1 - b.1).abs() < 0.05 * b.1, "mean {} vs {}", a.1, b.1);
+    assert!((a.2 - b.2).abs() < 0.05 * b.2, "p95 {} vs {}", a.2, b.2);
+    assert!((a.3 - b.3).abs() < 0.005, "coverage {} vs {}", a.3, b.3);
 }
 
 /// A rig file's `[reconstruct]` tables set the reconstruction; a bad value or an unknown

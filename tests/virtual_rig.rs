@@ -184,7 +184,15 @@ fn without_the_projector_stereo_leaves_holes_not_wrong_points() {
             num_disparities: 64,
             ..Default::default()
         };
-        let grid = pod_grid(rect, &l.pixels, &r.pixels, &o, &mut PodReport::default()).unwrap();
+        let grid = pod_grid(
+            rect,
+            &l.pixels,
+            &r.pixels,
+            &o,
+            None,
+            &mut PodReport::default(),
+        )
+        .unwrap();
         let d: Vec<f64> = grid
             .valid()
             .map(|p| surface.distance(&p) / subject.diagonal())

@@ -36,7 +36,13 @@ pub struct ReconstructOptions {
     /// `sgbm.min_disparity` and `sgbm.num_disparities`: no match outside the volume, a
     /// near booth not cut off at 128 pixels, and less work for a far one
     pub auto_disparity_range: bool,
+    /// with a working volume, each pod matches only the window of its images the volume
+    /// can appear in (pixels outside it lie outside the volume, which the fusion crops)
+    pub volume_window: bool,
 }
+
+/// Pixels around a working volume's projected corners that a pod still matches.
+const VOLUME_WINDOW_MARGIN: f64 = 24.0;
 
 /// How a pod's depth grid becomes a mesh ([`DepthGrid::mesh`]).
 #[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
@@ -71,6 +77,7 @@ impl Default for ReconstructOptions {
             working_volume: None,
             mesh: GridMeshOptions::default(),
             auto_disparity_range: true,
+            volume_window: true,
         }
     }
 }
@@ -98,6 +105,9 @@ pub struct PodReport {
     pub maps_reused: bool,
     /// the disparities searched, [first, past the last], pixels
     pub disparities: [i32; 2],
+    /// the window of the rectified image matched ([x, y, width, height], pixels), when
+    /// not the whole image
+    pub window: Option<[i32; 4]>,
     pub seconds_rectify: f64,
     pub seconds_disparity: f64,
     pub seconds_reproject: f64,
@@ -265,6 +275,52 @@ impl PodRectifier {
         let min = ((fb / far).floor() as i32 - 2).max(0);
         let count = ((fb / near + 2.0 - min as f64) / 16.0).ceil() as i32 * 16;
         Some((min, count.clamp(16, 1024)))
+    }
+
+    /// The rectified left image's window (x, y, width, height) over which this pod can
+    /// see the box `volume` at disparities from `min` to `min + count`: the box's
+    /// corners projected, with a margin, widened on the left by the disparities (the
+    /// right image's part a match there reaches). None when the box does not lie wholly
+    /// in front of the camera, or the window is most of the image.
+    pub fn volume_window(
+        &self,
+        volume: [[f64; 3]; 2],
+        min: i32,
+        count: i32,
+    ) -> Option<(i32, i32, i32, i32)> {
+        let (w, h) = (self.pod.left.width as f64, self.pod.left.height as f64);
+        let cx = *self.rect.p1.at_2d::<f64>(0, 2).ok()?;
+        let cy = *self.rect.p1.at_2d::<f64>(1, 2).ok()?;
+        let [lo, hi] = volume;
+        let (mut x0, mut y0, mut x1, mut y1) = (f64::MAX, f64::MAX, f64::MIN, f64::MIN);
+        for c in 0..8 {
+            let p = V3::new(
+                if c & 1 == 0 { lo[0] } else { hi[0] },
+                if c & 2 == 0 { lo[1] } else { hi[1] },
+                if c & 4 == 0 { lo[2] } else { hi[2] },
+            );
+            let q = self.rot.transpose() * (p - self.shift);
+            if q.z <= 1e-9 {
+                return None;
+            }
+            let (u, v) = (self.focal * q.x / q.z + cx, self.focal * q.y / q.z + cy);
+            (x0, y0, x1, y1) = (x0.min(u), y0.min(v), x1.max(u), y1.max(v));
+        }
+        let margin = VOLUME_WINDOW_MARGIN;
+        let left = (x0 - margin - (min + count) as f64).floor().max(0.0);
+        let top = (y0 - margin).floor().max(0.0);
+        let right = (x1 + margin).ceil().min(w);
+        let bottom = (y1 + margin).ceil().min(h);
+        if right - left < 32.0 || bottom - top < 32.0 {
+            return None;
+        }
+        let share = (right - left) * (bottom - top) / (w * h);
+        (share < 0.9).then_some((
+            left as i32,
+            top as i32,
+            (right - left) as i32,
+            (bottom - top) as i32,
+        ))
     }
 
     fn remap(&self, right: bool, img: &Mat) -> opencv::Result<Mat> {
@@ -443,6 +499,7 @@ pub fn pod_grid(
     left: &[u8],
     right: &[u8],
     o: &SgbmOptions,
+    window: Option<(i32, i32, i32, i32)>,
     report: &mut PodReport,
 ) -> opencv::Result<DepthGrid> {
     let pod = &rectifier.pod;
@@ -454,7 +511,24 @@ pub fn pod_grid(
     let (lr, rr) = (rectifier.remap(false, &lm)?, rectifier.remap(true, &rm)?);
     report.seconds_rectify = t0.elapsed().as_secs_f64();
     let t1 = Instant::now();
-    let matched = match_pair(&lr, &rr, Some(&rectifier.grids), o)?;
+    // matched only over the window (rows are epipolar lines, so a band of rows is
+    // matched as in the whole image); the rest has no match
+    let matched = match window {
+        None => match_pair(&lr, &rr, Some(&rectifier.grids), o)?,
+        Some((x, y, ww, wh)) => {
+            let rect = core::Rect::new(x, y, ww, wh);
+            let crop = |m: &Mat| -> opencv::Result<Mat> { Mat::roi(m, rect)?.try_clone() };
+            let mut m = match_pair(&crop(&lr)?, &crop(&rr)?, None, o)?;
+            let mut full = vec![f32::INFINITY; (w * h) as usize];
+            for (r, row) in m.values.chunks(ww as usize).enumerate() {
+                let at = (y as usize + r) * w as usize + x as usize;
+                full[at..at + ww as usize].copy_from_slice(row);
+            }
+            m.values = full;
+            m
+        }
+    };
+    report.window = window.map(|(x, y, ww, wh)| [x, y, ww, wh]);
     report.seconds_disparity = t1.elapsed().as_secs_f64();
     let t2 = Instant::now();
     let kept = Mat::new_rows_cols_with_data(h as i32, w as i32, &matched.values)?;
@@ -575,7 +649,11 @@ pub fn reconstruct(
             sgbm.min_disparity,
             sgbm.min_disparity + sgbm.num_disparities,
         ];
-        let grid = pod_grid(rectifier, p.left, p.right, &sgbm, &mut pr).map_err(ocv)?;
+        let window = o
+            .working_volume
+            .filter(|_| o.volume_window)
+            .and_then(|v| rectifier.volume_window(v, sgbm.min_disparity, sgbm.num_disparities));
+        let grid = pod_grid(rectifier, p.left, p.right, &sgbm, window, &mut pr).map_err(ocv)?;
         if pr.points == 0 {
             return Err(ReconstructError::EmptyDisparity { pod: id });
         }
@@ -619,6 +697,9 @@ pub fn fuse_meshes(
     out
 }
 
+/// Points a fused scan's normal is fitted to (the point itself among them).
+const NORMAL_NEIGHBOURS: usize = 12;
+
 /// Fuses pods' points into one scan with normals.
 pub fn fuse(points: Vec<(V3, V3)>, o: &ReconstructOptions, report: &mut ReconstructReport) -> Mesh {
     let t = Instant::now();
@@ -632,47 +713,84 @@ pub fn fuse(points: Vec<(V3, V3)>, o: &ReconstructOptions, report: &mut Reconstr
     };
     report.after_crop = pts.len();
     if o.voxel > 0.0 {
-        let mut cells: HashMap<[i64; 3], (V3, V3, usize)> = HashMap::new();
-        for (p, c) in pts {
-            let key = [
-                (p.x / o.voxel).floor() as i64,
-                (p.y / o.voxel).floor() as i64,
-                (p.z / o.voxel).floor() as i64,
-            ];
-            let e = cells.entry(key).or_insert((V3::zeros(), V3::zeros(), 0));
-            e.0 += p;
-            e.1 += c;
-            e.2 += 1;
-        }
-        let mut v: Vec<_> = cells.into_iter().collect();
-        v.sort_by_key(|(k, _)| *k);
-        pts = v
-            .into_iter()
-            .map(|(_, (p, c, n))| (p / n as f64, c / n as f64))
+        // each voxel's points averaged, voxels in key order: the points sorted by their
+        // voxel (stably, so each voxel sums in the points' order), then each run summed
+        let mut keyed: Vec<([i64; 3], usize)> = pts
+            .par_iter()
+            .enumerate()
+            .map(|(i, (p, _))| {
+                let key = [
+                    (p.x / o.voxel).floor() as i64,
+                    (p.y / o.voxel).floor() as i64,
+                    (p.z / o.voxel).floor() as i64,
+                ];
+                (key, i)
+            })
+            .collect();
+        keyed.par_sort_by_key(|(k, _)| *k);
+        pts = keyed
+            .chunk_by(|a, b| a.0 == b.0)
+            .map(|run| {
+                let (p, c) = run
+                    .iter()
+                    .fold((V3::zeros(), V3::zeros()), |(p, c), &(_, i)| {
+                        (p + pts[i].0, c + pts[i].1)
+                    });
+                (p / run.len() as f64, c / run.len() as f64)
+            })
             .collect();
     }
     report.after_voxel = pts.len();
+    // each kept point's nearest neighbours (itself first, indices after the removal)
+    // from the outlier search, where none of them was removed: its normal needs no
+    // search of its own
+    let mut near: Vec<Option<Vec<u32>>> = Vec::new();
     if o.outlier_k > 0 && pts.len() > o.outlier_k + 1 {
         let arr: Vec<[f64; 3]> = pts.iter().map(|(p, _)| [p.x, p.y, p.z]).collect();
         let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&arr);
-        let k = NonZero::new(o.outlier_k + 1).unwrap();
-        let mean_d: Vec<f64> = arr
+        let k = NonZero::new((o.outlier_k + 1).max(NORMAL_NEIGHBOURS)).unwrap();
+        let found: Vec<(f64, Vec<u32>)> = arr
             .par_iter()
             .map(|q| {
-                tree.nearest_n::<SquaredEuclidean>(q, k)
+                let nb = tree.nearest_n::<SquaredEuclidean>(q, k);
+                let mean = nb
                     .iter()
                     .skip(1)
+                    .take(o.outlier_k)
                     .map(|m| m.distance.sqrt())
                     .sum::<f64>()
-                    / o.outlier_k as f64
+                    / o.outlier_k as f64;
+                let ids = nb
+                    .iter()
+                    .take(NORMAL_NEIGHBOURS)
+                    .map(|m| m.item as u32)
+                    .collect();
+                (mean, ids)
             })
             .collect();
-        let mu = mean_d.iter().sum::<f64>() / mean_d.len() as f64;
-        let sd =
-            (mean_d.iter().map(|d| (d - mu).powi(2)).sum::<f64>() / mean_d.len() as f64).sqrt();
-        let keep: Vec<bool> = mean_d
+        let n = found.len() as f64;
+        let mu = found.iter().map(|f| f.0).sum::<f64>() / n;
+        let sd = (found.iter().map(|f| (f.0 - mu).powi(2)).sum::<f64>() / n).sqrt();
+        let keep: Vec<bool> = found
             .iter()
-            .map(|d| *d <= mu + o.outlier_sigma * sd)
+            .map(|f| f.0 <= mu + o.outlier_sigma * sd)
+            .collect();
+        let mut renumber = vec![u32::MAX; keep.len()];
+        let mut next = 0;
+        for (i, &k) in keep.iter().enumerate() {
+            if k {
+                renumber[i] = next;
+                next += 1;
+            }
+        }
+        near = found
+            .into_iter()
+            .zip(&keep)
+            .filter(|(_, k)| **k)
+            .map(|((_, ids), _)| {
+                let ids: Vec<u32> = ids.iter().map(|&j| renumber[j as usize]).collect();
+                (ids.len() == NORMAL_NEIGHBOURS && !ids.contains(&u32::MAX)).then_some(ids)
+            })
             .collect();
         pts = pts
             .into_iter()
@@ -685,20 +803,30 @@ pub fn fuse(points: Vec<(V3, V3)>, o: &ReconstructOptions, report: &mut Reconstr
     // normals from 12 neighbours, turned towards the camera that saw the point
     let arr: Vec<[f64; 3]> = pts.iter().map(|(p, _)| [p.x, p.y, p.z]).collect();
     let mut mesh = Mesh::new(pts.iter().map(|(p, _)| *p).collect(), vec![]);
-    if arr.len() >= 13 {
+    if arr.len() > NORMAL_NEIGHBOURS {
         let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&arr);
         let normals = pts
             .par_iter()
-            .map(|(p, cam)| {
-                let nb =
-                    tree.nearest_n::<SquaredEuclidean>(&[p.x, p.y, p.z], NonZero::new(12).unwrap());
-                let c = nb
-                    .iter()
-                    .map(|m| mesh.vertices[m.item as usize])
-                    .sum::<V3>()
-                    / nb.len() as f64;
-                let cov = nb.iter().fold(nalgebra::Matrix3::zeros(), |a, m| {
-                    let d = mesh.vertices[m.item as usize] - c;
+            .enumerate()
+            .map(|(i, (p, cam))| {
+                let searched;
+                let nb: &[u32] = match near.get(i) {
+                    Some(Some(ids)) => ids,
+                    _ => {
+                        searched = tree
+                            .nearest_n::<SquaredEuclidean>(
+                                &[p.x, p.y, p.z],
+                                NonZero::new(NORMAL_NEIGHBOURS).unwrap(),
+                            )
+                            .iter()
+                            .map(|m| m.item as u32)
+                            .collect::<Vec<u32>>();
+                        &searched
+                    }
+                };
+                let c = nb.iter().map(|&j| mesh.vertices[j as usize]).sum::<V3>() / nb.len() as f64;
+                let cov = nb.iter().fold(nalgebra::Matrix3::zeros(), |a, &j| {
+                    let d = mesh.vertices[j as usize] - c;
                     a + d * d.transpose()
                 });
                 let e = cov.symmetric_eigen();
