@@ -45,8 +45,14 @@ lint: deps
 
 # Lint, then every test, compiled once: the `ci` profile optimises (the known-answer
 # tests are heavy) and keeps debug assertions and overflow checks on.
+# The whole run has a limit (compiling included): a test that hangs where no deadline
+# of its own catches it stops the run with a line saying so, rather than the CI job's
+# own limit ending it without one.
+TEST_LIMIT_S ?= 2700
 test: test-deps lint
-	$(CARGO) test --locked --profile ci --features test-hooks
+	@timeout --kill-after=60 $(TEST_LIMIT_S) $(CARGO) test --locked --profile ci --features test-hooks; rc=$$?; \
+	if [ $$rc -eq 124 ] || [ $$rc -eq 137 ]; then echo "make test: stopped after $(TEST_LIMIT_S) s (TEST_LIMIT_S): a test hung"; fi; \
+	exit $$rc
 	@$(MAKE) --no-print-directory verify-unit
 
 # systemd-analyze verify on the units (where systemd is), pointing at the binary just built.

@@ -4,6 +4,8 @@
 //! row leave exactly 100 sets. Cameras on simulated V4L2 drivers (triggered and
 //! free-running) show that arming starts streaming and that no frame from before the
 //! trigger is taken.
+mod common;
+use common::{CHILD_LIMIT, Deadline};
 
 use conformd::rig::camera::{Camera, CameraInfo, CameraSettings, PixelFormat};
 use conformd::rig::capture::{
@@ -322,8 +324,7 @@ fn capture_from_a_station_config() {
             "--subject",
             "pig-7",
         ])
-        .output()
-        .unwrap();
+        .output_within(CHILD_LIMIT);
     assert!(
         out.status.success(),
         "{}",
@@ -338,8 +339,7 @@ fn capture_from_a_station_config() {
     std::fs::write(&cfg, "[capture]\nroot = \"c\"\n").unwrap();
     let out = std::process::Command::new(env!("CARGO_BIN_EXE_conformd"))
         .args(["capture", "--config", cfg.to_str().unwrap()])
-        .output()
-        .unwrap();
+        .output_within(CHILD_LIMIT);
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(
         !out.status.success() && err.contains("station.toml"),
@@ -512,7 +512,7 @@ fn concurrent_captures_into_one_folder_never_share_an_id() {
         let (a, b) = (format!("pig-{round}a"), format!("pig-{round}b"));
         let (pa, pb) = (run(&a), run(&b));
         for (p, s) in [(pa, &a), (pb, &b)] {
-            let out = p.wait_with_output().unwrap();
+            let out = common::deadline::output_of(p, &format!("capture {s}"), CHILD_LIMIT);
             assert!(
                 out.status.success(),
                 "round {round}, {s}: {}",

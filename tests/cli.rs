@@ -1,6 +1,9 @@
 //! The `conformd` binary end to end on files: conform with landmarks and without, the
 //! report's per-iteration figures, `info`, and the one-line error a bad file gets.
 
+mod common;
+use common::{CHILD_LIMIT, Deadline};
+
 use conformd::mesh::io::{PlyEncoding, obj_bytes, ply_bytes};
 use conformd::mesh::landmarks::landmarks_text;
 use conformd::synth::cases;
@@ -11,8 +14,7 @@ fn conformd(args: &[&str], dir: &Path) -> std::process::Output {
     Command::new(env!("CARGO_BIN_EXE_conformd"))
         .args(args)
         .current_dir(dir)
-        .output()
-        .expect("runs")
+        .output_within(CHILD_LIMIT)
 }
 
 fn write_case(dir: &Path) -> cases::Case {
@@ -977,4 +979,48 @@ fn template_and_autorig_write_rigs_that_a_station_reads() {
         !out.status.success() && err.contains("brings its own"),
         "{err}"
     );
+}
+
+#[test]
+fn a_child_past_its_deadline_is_killed_with_its_own_children_and_fails_its_test() {
+    // what every test's child runs under: a regression that blocks (a reader waiting on
+    // a FIFO) fails the test that ran it, and leaves no process behind
+    let dir = tempfile::tempdir().unwrap();
+    let (pid, grandchild) = (dir.path().join("pid"), dir.path().join("grandchild"));
+    let t = std::time::Instant::now();
+    let hung = std::panic::catch_unwind(|| {
+        Command::new("sh")
+            .arg("-c")
+            .arg(format!(
+                "sleep 60 & echo $! > '{}'; echo $$ > '{}'; wait",
+                grandchild.display(),
+                pid.display()
+            ))
+            .output_within(std::time::Duration::from_millis(500))
+    });
+    let why = hung.expect_err("a hung child must fail its test");
+    let why = why.downcast_ref::<String>().cloned().unwrap_or_default();
+    assert!(
+        why.contains("was still running after 500ms: killed"),
+        "{why}"
+    );
+    assert!(
+        t.elapsed() < std::time::Duration::from_secs(10),
+        "{:?}",
+        t.elapsed()
+    );
+    for f in [&pid, &grandchild] {
+        let id = std::fs::read_to_string(f).unwrap();
+        // gone, or a zombie whose parent (here, not always an init that reaps) has not
+        // collected it yet: killed either way
+        let state = std::fs::read_to_string(format!("/proc/{}/stat", id.trim()))
+            .ok()
+            .and_then(|s| s.rsplit(')').next().map(|r| r.trim().chars().next()))
+            .flatten();
+        assert!(
+            matches!(state, None | Some('Z') | Some('X')),
+            "process {} outlived its deadline (state {state:?})",
+            id.trim()
+        );
+    }
 }

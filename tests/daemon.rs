@@ -3,6 +3,8 @@
 //! without inotify), SIGKILL and restart, SIGTERM during work, corrupt sets and a crashing
 //! worker, and the API's refusals. Results, journal and API must agree; every capture is
 //! processed exactly once.
+mod common;
+use common::{CHILD_LIMIT, Deadline};
 
 use conformd::daemon::journal::{self, Journal, State};
 use std::path::{Path, PathBuf};
@@ -808,8 +810,7 @@ fn the_api_refuses_traversal_oversized_bodies_and_missing_tokens() {
         .arg("daemon")
         .arg("--config")
         .arg(&cfg)
-        .output()
-        .unwrap();
+        .output_within(CHILD_LIMIT);
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && err.contains("token"), "{err}");
 
@@ -894,8 +895,7 @@ fn chromium(args: &[&str], url: &str, profile: &Path) -> std::process::Output {
         .arg(format!("--user-data-dir={}", profile.display()))
         .args(args)
         .arg(url)
-        .output()
-        .unwrap()
+        .output_within(CHILD_LIMIT)
 }
 
 #[test]
@@ -1231,8 +1231,7 @@ fn reviews_are_checked_and_a_rejected_result_leaves_the_export_and_the_model() {
     let out = Command::new(BIN)
         .args(["export", "--results"])
         .arg(d.join("data/results"))
-        .output()
-        .unwrap();
+        .output_within(CHILD_LIMIT);
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(
         out.status.success() && !stdout.contains("\nr1,"),
@@ -1276,8 +1275,7 @@ fn reviews_are_checked_and_a_rejected_result_leaves_the_export_and_the_model() {
         .arg(d.join("data/results"))
         .arg("--repeatability")
         .arg(&spreads)
-        .output()
-        .unwrap();
+        .output_within(CHILD_LIMIT);
     assert!(
         out.status.success(),
         "{}",

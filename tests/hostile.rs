@@ -1,6 +1,8 @@
 //! Hostile and careless input (the hostile-input issue's cases fixed so far): each gets
 //! one clear sentence and a failing exit, never a panic, a hang, or a "success" with
 //! garbage; a failed command leaves no output behind.
+mod common;
+use common::{CHILD_LIMIT, Deadline};
 
 use conformd::conform::{ConformOptions, conform};
 use conformd::mesh::{Mesh, V3};
@@ -28,15 +30,15 @@ fn tree(dir: &Path) -> Vec<std::path::PathBuf> {
 }
 
 /// Runs the binary in `dir`; asserts it failed within 10 s with every word in stderr,
-/// without a panic, and created no file or folder in `dir`.
+/// without a panic, and created no file or folder in `dir`. A child that blocks (a
+/// reader opening a FIFO) is killed after 30 s and fails the test.
 fn refused(dir: &Path, args: &[&str], words: &[&str]) -> String {
     let before = tree(dir);
     let t = Instant::now();
     let out = Command::new(env!("CARGO_BIN_EXE_conformd"))
         .args(args)
         .current_dir(dir)
-        .output()
-        .unwrap();
+        .output_within(Duration::from_secs(30));
     let err = String::from_utf8_lossy(&out.stderr).to_string();
     assert!(
         t.elapsed() < Duration::from_secs(10),
@@ -527,8 +529,7 @@ fn simulate_on_a_full_disk_leaves_nothing_behind() {
             rig.display()
         ))
         .current_dir(dir.path())
-        .output()
-        .unwrap();
+        .output_within(CHILD_LIMIT);
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success(), "simulate succeeded on a full disk");
     assert!(
@@ -892,8 +893,7 @@ fn results_are_never_written_into_what_they_are_made_from() {
     let out = Command::new(env!("CARGO_BIN_EXE_conformd"))
         .args(["export", "--results", "results"])
         .current_dir(d)
-        .output()
-        .unwrap();
+        .output_within(CHILD_LIMIT);
     let (csv, err) = (
         String::from_utf8_lossy(&out.stdout),
         String::from_utf8_lossy(&out.stderr),

@@ -3,6 +3,8 @@
 //! normalisation over 12 postures.
 //!
 //! Heavy (12 conformations): run it optimised, as `make test` does (`--profile ci`).
+mod common;
+use common::{CHILD_LIMIT, Deadline};
 
 use conformd::conform::{ConformOptions, conform};
 use conformd::measure::{Definitions, Measurement, hull_perimeter, section_piece, volume};
@@ -486,8 +488,7 @@ fn the_measure_command_writes_json_and_csv_and_takes_the_posture_out() {
         let out = std::process::Command::new(exe)
             .args(args)
             .current_dir(d)
-            .output()
-            .unwrap();
+            .output_within(CHILD_LIMIT);
         assert!(
             out.status.success(),
             "{args:?}: {}",
@@ -588,8 +589,7 @@ fn the_measure_command_writes_json_and_csv_and_takes_the_posture_out() {
     let out = std::process::Command::new(exe)
         .args(["measure", "posed.obj", "--template", "rest.obj"])
         .current_dir(d)
-        .output()
-        .unwrap();
+        .output_within(CHILD_LIMIT);
     assert!(!out.status.success());
     let e = String::from_utf8_lossy(&out.stderr);
     assert!(e.contains("--definitions"), "{e}");

@@ -2,6 +2,8 @@
 //! then `conform` give; results appear whole or not at all, even when the process is
 //! killed; bad capture sets fail with the right stage, permanence and file; a station
 //! file's mistakes are all reported with their lines.
+mod common;
+use common::{CHILD_LIMIT, Deadline};
 
 use conformd::jobs;
 use conformd::station::pipeline::{Control, Pipeline, RESULT_FILES, Stage, remove_partial_results};
@@ -246,8 +248,7 @@ fn a_killed_process_leaves_no_partial_result() {
         .arg(&cfg)
         .arg("--out")
         .arg(&results)
-        .output()
-        .unwrap();
+        .output_within(CHILD_LIMIT);
     assert!(
         out.status.success(),
         "{}",
@@ -475,7 +476,10 @@ fn every_mistake_in_a_station_file_is_reported_with_its_line() {
         "{text}"
     );
     // through the binary: non-zero exit, every line in the message
-    let out = Command::new(BIN).arg("check").arg(&p).output().unwrap();
+    let out = Command::new(BIN)
+        .arg("check")
+        .arg(&p)
+        .output_within(CHILD_LIMIT);
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success());
     for l in ["line 6", "line 9", "line 11"] {
@@ -493,7 +497,10 @@ fn every_mistake_in_a_station_file_is_reported_with_its_line() {
 
 /// `conformd check` on a station file: (exit success, stdout, stderr).
 fn check_cmd(file: &Path) -> (bool, String, String) {
-    let out = Command::new(BIN).arg("check").arg(file).output().unwrap();
+    let out = Command::new(BIN)
+        .arg("check")
+        .arg(file)
+        .output_within(CHILD_LIMIT);
     (
         out.status.success(),
         String::from_utf8_lossy(&out.stdout).into(),
@@ -625,7 +632,10 @@ fn the_example_station_file_is_complete_and_valid() {
     let rig_cfg = cfg.rig_config().unwrap();
     assert_eq!(rig_cfg.root, Path::new("/var/lib/conformd/captures"));
     assert_eq!(rig_cfg.capture.options.station, "crate-1");
-    let out = Command::new(BIN).arg("check").arg(&path).output().unwrap();
+    let out = Command::new(BIN)
+        .arg("check")
+        .arg(&path)
+        .output_within(CHILD_LIMIT);
     assert!(
         out.status.success(),
         "{}",
@@ -735,8 +745,7 @@ fn landmarks_given_to_process_are_checked_as_the_page_checks_them() {
         .arg(&results)
         .arg("--landmarks")
         .arg(d.join("far.txt"))
-        .output()
-        .unwrap();
+        .output_within(CHILD_LIMIT);
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(
         out.status.code() == Some(1) && err.contains("off the scan"),

@@ -1,6 +1,9 @@
 //! Previews: a rendered conformed mesh shows an object of plausible size, shaded (not a
 //! flat silhouette), in the colours asked for; the CLI writes a PNG that decodes.
 
+mod common;
+use common::{CHILD_LIMIT, Deadline};
+
 use conformd::render::{Colouring, RenderOptions, View, colour_map, render};
 use conformd::template::{self as templates, Kind};
 
@@ -89,8 +92,7 @@ fn cli_renders_a_png_and_colours_by_distance() {
             "b.png",
         ])
         .current_dir(dir.path())
-        .output()
-        .unwrap();
+        .output_within(CHILD_LIMIT);
     assert!(
         out.status.success(),
         "{}",
@@ -126,8 +128,7 @@ fn cli_renders_a_png_and_colours_by_distance() {
     let out = std::process::Command::new(bin)
         .args(["render", "body.obj", "--views", "below", "--out", "c.png"])
         .current_dir(dir.path())
-        .output()
-        .unwrap();
+        .output_within(CHILD_LIMIT);
     assert!(
         !out.status.success()
             && String::from_utf8_lossy(&out.stderr).contains("unknown view 'below'")

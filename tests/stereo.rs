@@ -1,6 +1,8 @@
 //! Stereo reconstruction on simulated captures: a two-pod capture of a
 //! pig reconstructs a scan close to the true surface that covers what the cameras see;
 //! conformed with the template, it gives dense correspondence against the ground truth.
+mod common;
+use common::{CHILD_LIMIT, Deadline};
 
 use conformd::conform::correspond::ScanSurface;
 use conformd::conform::{ConformOptions, conform};
@@ -667,8 +669,7 @@ fn recorded_pairs_are_scored_against_their_ground_truth() {
             .arg(root.join("cones/im6.png"))
             .arg("--out")
             .arg(dir.path().join("d.pfm"))
-            .output()
-            .unwrap();
+            .output_within(CHILD_LIMIT);
         let text = String::from_utf8_lossy(&out.stdout).to_string();
         assert!(out.status.success(), "{text}");
         text
@@ -702,8 +703,7 @@ fn recorded_pairs_are_scored_against_their_ground_truth() {
             .arg("--out")
             .arg(dir.path().join("e.pfm"))
             .current_dir(dir.path())
-            .output()
-            .unwrap();
+            .output_within(CHILD_LIMIT);
         let err = String::from_utf8_lossy(&out.stderr);
         assert!(!out.status.success() && err.contains(expect), "{err}");
     }
@@ -822,7 +822,7 @@ fn a_recorded_pair_replays_through_reconstruct_and_is_scored_in_depth() {
     let d = tempfile::tempdir().unwrap();
     // runs conformd, asserts it succeeded, returns what it printed
     let conformd = |cmd: &mut std::process::Command| -> String {
-        let out = cmd.output().unwrap();
+        let out = cmd.output_within(CHILD_LIMIT);
         let text = String::from_utf8_lossy(&out.stdout).to_string()
             + &String::from_utf8_lossy(&out.stderr);
         assert!(out.status.success(), "{text}");
@@ -878,9 +878,8 @@ fn a_recorded_pair_replays_through_reconstruct_and_is_scored_in_depth() {
     );
     // a truth that cannot be used is refused before the scan is written
     std::fs::write(d.path().join("bad-truth.png"), b"not a png").unwrap();
-    let out = reconstruct("refused.ply", &d.path().join("bad-truth.png"))
-        .output()
-        .unwrap();
+    let out =
+        reconstruct("refused.ply", &d.path().join("bad-truth.png")).output_within(CHILD_LIMIT);
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(
         !out.status.success() && err.contains("bad-truth.png"),
@@ -1002,8 +1001,7 @@ fn import_pair_refuses_a_calibration_that_does_not_fit_its_pair() {
             .arg(d.path().join("calib.txt"))
             .arg("--out")
             .arg(d.path().join("replay"))
-            .output()
-            .unwrap();
+            .output_within(CHILD_LIMIT);
         let err = String::from_utf8_lossy(&out.stderr);
         assert!(
             !out.status.success() && err.contains("calib.txt") && err.contains(words),

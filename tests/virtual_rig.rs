@@ -1,6 +1,8 @@
 //! The virtual rig renders what stereo needs: a speckled subject whose every surface
 //! point looks the same in both cameras of a pod, at the place the calibration predicts
 //! (lens distortion included); and `conformd simulate` writes standard capture sets.
+mod common;
+use common::{CHILD_LIMIT, Deadline};
 
 use conformd::stereo::rig::RigFile;
 use conformd::synth::rig::render_camera;
@@ -135,8 +137,7 @@ fn simulate_writes_standard_capture_sets() {
             "sim",
         ])
         .current_dir(dir.path())
-        .output()
-        .unwrap();
+        .output_within(CHILD_LIMIT);
     assert!(
         out.status.success(),
         "{}",

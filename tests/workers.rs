@@ -4,6 +4,8 @@
 //! a stand-in program that imitates `conformd process --json --stage` (a staged result
 //! and its JSON line) in a fifth of a second: what is tested is the queue.
 
+mod common;
+
 use conformd::daemon::journal::{self, State, cluster::TempPostgres};
 use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
@@ -154,7 +156,7 @@ fn a_worker_that_stalls_past_its_lease_finds_its_job_taken_and_discards_its_resu
         .map(|k| dir.path().join(format!("worker-{k}.log")))
         .collect();
     let cfg_s = cfg.display().to_string();
-    let mut workers: Vec<Child> = logs
+    let workers: Vec<Child> = logs
         .iter()
         .map(|l| spawn_with_job_s(&["worker", "--config", &cfg_s], l, 1.0))
         .collect();
@@ -207,9 +209,12 @@ fn a_worker_that_stalls_past_its_lease_finds_its_job_taken_and_discards_its_resu
         2,
         "{runs}"
     );
-    for w in &mut workers {
+    for w in workers {
         signal(w.id(), "-TERM");
-        assert!(w.wait().unwrap().success());
+        // a worker that ignores SIGTERM fails here rather than hanging the suite
+        let status =
+            common::deadline::status_of(w, "a worker told to stop", Duration::from_secs(60));
+        assert!(status.success(), "{status}");
     }
 }
 
