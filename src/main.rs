@@ -374,12 +374,15 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
             }
         }
         Cmd::Cameras => {
-            let list = conformd::rig::v4l2::list_devices();
-            if list.is_empty() {
-                println!("no V4L2 cameras found (no usable /dev/video* device on this machine)");
+            let (list, unusable) = conformd::rig::v4l2::list_all();
+            if list.is_empty() && unusable.is_empty() {
+                println!("no V4L2 cameras found (no /dev/video* device on this machine)");
             }
             for d in list {
                 println!("{d}");
+            }
+            for (path, why) in unusable {
+                println!("{}: {why}", path.display());
             }
         }
         Cmd::Model { cmd } => match cmd {

@@ -427,10 +427,12 @@ fn captures_fired_through_the_box_are_processed_and_the_api_agrees() {
             stages.contains("<td>conform</td>") && stages.ends_with(" s</td></tr>"),
             "{stages}"
         );
-        assert!(
-            stages.rfind("total") > stages.rfind("reconstruct"),
-            "{stages}"
-        );
+        let at = |stage: &str| {
+            stages
+                .rfind(stage)
+                .unwrap_or_else(|| panic!("{id}: no {stage} in {stages}"))
+        };
+        assert!(at("total") > at("reconstruct"), "{stages}");
         assert!(!page.contains("{\""), "raw JSON on the page: {page}");
         for file in ["conformed.ply", "scan.ply", "report.json"] {
             let (code, body) = daemon.get(&format!("/api/captures/{id}/{file}"));
@@ -691,8 +693,12 @@ fn corrupt_sets_fail_with_their_reason_and_a_crashing_job_does_not_stop_the_daem
         std::fs::rename(e.path(), incoming.join(e.file_name())).unwrap();
     }
     daemon.wait_settled(8, Duration::from_secs(120));
-    // a few rescans (rescan_s = 1) later, still one line each
-    std::thread::sleep(Duration::from_secs(3));
+    // three scans (rescan_s = 1) later, still one line each
+    let scans = |d: &Daemon| d.status()["scans"].as_u64().expect("scans in the status");
+    let seen = scans(&daemon);
+    daemon.wait_for(Duration::from_secs(30), "three more scans", |d| {
+        scans(d) >= seen + 3
+    });
     let not_taken = daemon.status()["not_taken"].clone();
     let reason = |entry: &str| {
         not_taken

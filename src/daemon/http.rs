@@ -254,6 +254,8 @@ struct Status {
     model_error: Option<String>,
     /// entries of `captures/` and `incoming/` the station will not take, with why
     not_taken: Vec<NotTaken>,
+    /// scans of the capture folders since start-up
+    scans: u64,
     /// newest results whose fit warned of distortion, not yet accepted or rejected
     awaiting_review: Vec<AwaitingReview>,
 }
@@ -325,6 +327,7 @@ fn status_of(shared: &Shared) -> Api<Status> {
             })
             .unwrap_or_default(),
         awaiting_review: awaiting_review(shared),
+        scans: shared.scans.load(std::sync::atomic::Ordering::SeqCst),
     })
 }
 

@@ -113,6 +113,8 @@ pub struct Shared {
     pub refused: Mutex<BTreeMap<String, String>>,
     /// an incoming set waits for its files to settle: scan again soon
     settling: AtomicBool,
+    /// scans of the capture folders so far (start-up, rescans, the watcher's hints)
+    pub scans: std::sync::atomic::AtomicU64,
     /// folders the watcher saw renamed into `incoming/` (a set that came whole need not
     /// settle)
     moved_in: Arc<Mutex<std::collections::HashSet<String>>>,
@@ -225,6 +227,7 @@ impl Shared {
             refused: Default::default(),
             settling: AtomicBool::new(false),
             moved_in: Default::default(),
+            scans: Default::default(),
             known_ids: Default::default(),
             wake: Default::default(),
             abort: Default::default(),
@@ -692,6 +695,11 @@ fn watch_error(what: &str, e: &notify::Error) -> String {
 /// present) are moved into `captures/`; every complete set in `captures/` the journal
 /// does not know is queued. Events are hints; this is the truth.
 pub fn scan(shared: &Shared) {
+    scan_folders(shared);
+    shared.scans.fetch_add(1, Ordering::SeqCst);
+}
+
+fn scan_folders(shared: &Shared) {
     let captures = shared.captures_dir();
     let incoming = shared.incoming_dir();
     let moved_in = |name: &str| {
@@ -709,13 +717,17 @@ pub fn scan(shared: &Shared) {
         .collect();
     for (name, dir) in from_incoming.sets {
         let to = captures.join(&name);
-        shared
-            .moved_in
-            .lock()
-            .unwrap_or_else(|p| p.into_inner())
-            .remove(&name);
         match crate::files::rename_no_replace(&dir, &to) {
-            Ok(()) => info!(capture = %name, "taken in from incoming/"),
+            Ok(()) => {
+                // (a set refused stays remembered: it is judged alike at every scan, so
+                // its reason is logged once)
+                shared
+                    .moved_in
+                    .lock()
+                    .unwrap_or_else(|p| p.into_inner())
+                    .remove(&name);
+                info!(capture = %name, "taken in from incoming/")
+            }
             Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
                 refused.insert(
                     format!("incoming/{name}"),

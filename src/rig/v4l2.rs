@@ -555,6 +555,12 @@ impl std::fmt::Display for DeviceListing {
 
 /// Lists V4L2 capture devices with their stable names, formats, sizes and controls.
 pub fn list_devices() -> Vec<DeviceListing> {
+    list_all().0
+}
+
+/// [`list_devices`], and the video device nodes that could not be queried, each with
+/// why (a node the station's user may not open, one that is not a V4L2 device).
+pub fn list_all() -> (Vec<DeviceListing>, Vec<(PathBuf, String)>) {
     let by_id: Vec<(PathBuf, String)> = std::fs::read_dir("/dev/v4l/by-id")
         .map(|rd| {
             rd.filter_map(|e| e.ok())
@@ -567,12 +573,28 @@ pub fn list_devices() -> Vec<DeviceListing> {
         })
         .unwrap_or_default();
     let mut out = Vec::new();
+    let mut unusable = Vec::new();
     for node in v4l::context::enum_devices() {
         let path = node.path().to_path_buf();
-        let Ok(dev) = Device::with_path(&path) else {
-            continue;
+        let dev = match Device::with_path(&path) {
+            Ok(d) => d,
+            Err(e) => {
+                let hint = if e.kind() == std::io::ErrorKind::PermissionDenied {
+                    " (the station's user must be in the device's group, usually video)"
+                } else {
+                    ""
+                };
+                unusable.push((path, format!("cannot be opened: {e}{hint}")));
+                continue;
+            }
         };
-        let Ok(caps) = dev.query_caps() else { continue };
+        let caps = match dev.query_caps() {
+            Ok(c) => c,
+            Err(e) => {
+                unusable.push((path, format!("is not a V4L2 device that answers: {e}")));
+                continue;
+            }
+        };
         let mut formats = Vec::new();
         for d in dev.enum_formats().unwrap_or_default() {
             let sizes: Vec<String> = dev
@@ -619,7 +641,7 @@ pub fn list_devices() -> Vec<DeviceListing> {
             controls,
         });
     }
-    out
+    (out, unusable)
 }
 
 #[cfg(test)]
