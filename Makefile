@@ -38,10 +38,12 @@ build: deps
 	$(CARGO) build --locked --release
 
 # Formatting and clippy (warnings are errors), on the same profile as the tests so the
-# dependencies are checked once.
+# dependencies are checked once: the tested configuration (with the test hooks) and the
+# shipped one (library and binary without them).
 lint: deps
 	$(CARGO) fmt --check
 	$(CARGO) clippy --locked --profile ci --all-targets --features test-hooks -- -D warnings
+	$(CARGO) clippy --locked --profile ci --lib --bins -- -D warnings
 
 # Lint, then every test, compiled once: the `ci` profile optimises (the known-answer
 # tests are heavy) and keeps debug assertions and overflow checks on.
