@@ -68,6 +68,12 @@ fn conform_with_landmarks_writes_mesh_and_report() {
         "template topology kept"
     );
     let f = cases::box_figures(&result);
+    eprintln!(
+        "missing region mean {:.3}% p90 {:.3}% max {:.3}%",
+        f.missing_mean * 100.0,
+        f.missing_p90 * 100.0,
+        f.max_anywhere * 100.0
+    );
     assert!(
         f.missing_mean < 0.02,
         "missing region mean {:.3}%",

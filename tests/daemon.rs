@@ -636,7 +636,8 @@ fn burst(watch: bool) {
     let (whole, hidden) = results_in(&d.join("data/results"));
     assert_eq!(whole.len(), n);
     assert!(hidden.is_empty());
-    assert!(peak_mb < 1500.0, "peak memory {peak_mb:.0} MB");
+    // measured 152-161 MB (README); 2.5x for another machine's allocator and page cache
+    assert!(peak_mb < 400.0, "peak memory {peak_mb:.0} MB");
 }
 
 #[test]
@@ -784,9 +785,11 @@ fn sigterm_during_work_exits_cleanly_and_the_requeued_work_is_done_at_the_next_s
         if let Some(s) = daemon.child.try_wait().unwrap() {
             break s;
         }
+        // measured 0.26 s with a drain of 0.2 s: a daemon that waited for its job to end
+        // (seconds) fails; 3 s leaves a loaded machine room
         assert!(
-            t.elapsed() < Duration::from_secs(10),
-            "still running 10 s after SIGTERM"
+            t.elapsed() < Duration::from_secs(3),
+            "still running 3 s after SIGTERM (drain_s = 0.2)"
         );
         std::thread::sleep(Duration::from_millis(20));
     };
