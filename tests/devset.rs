@@ -345,22 +345,9 @@ fn a_near_symmetric_subject_gets_both_alignments_fitted() {
             ..Default::default()
         },
     );
-    let r = conform(
-        &case.template,
-        &case.scan,
-        None,
-        &ConformOptions::default(),
-        &mut |_| {},
-    )
-    .unwrap();
-    let e = correspondence_error(
-        &r.mesh.vertices,
-        case.truth.as_ref().unwrap(),
-        &case.in_hole,
-        &case.template.triangles,
-    );
+    let (e, r) = conformed_without_landmarks(&case, "near-symmetric");
     let GlobalReport::Automatic(a) = &r.report.global else {
-        panic!("no landmarks: automatic alignment")
+        unreachable!("aligned without landmarks")
     };
     let art = a.articulated.as_ref().expect("an automatic rig");
     assert_eq!(art.hypotheses.len(), 2, "the close runner-up is fitted too");
@@ -411,7 +398,21 @@ fn without_landmarks(
     conformd::synth::cases::CorrespondenceError,
     conformd::conform::align::AlignReport,
 ) {
-    use conformd::conform::GlobalReport;
+    let (e, r) = conformed_without_landmarks(case, label);
+    let GlobalReport::Automatic(a) = r.report.global else {
+        unreachable!("checked by conformed_without_landmarks")
+    };
+    (e, a)
+}
+
+/// [`without_landmarks`] with the whole result.
+fn conformed_without_landmarks(
+    case: &conformd::synth::cases::Case,
+    label: &str,
+) -> (
+    conformd::synth::cases::CorrespondenceError,
+    conformd::conform::Conformed,
+) {
     let r = conform(
         &case.template,
         &case.scan,
@@ -426,7 +427,7 @@ fn without_landmarks(
         &case.in_hole,
         &case.template.triangles,
     );
-    let GlobalReport::Automatic(a) = r.report.global else {
+    let GlobalReport::Automatic(a) = &r.report.global else {
         panic!("no landmarks: automatic alignment")
     };
     eprintln!(
@@ -438,7 +439,7 @@ fn without_landmarks(
         a.residual,
         a.runner_up_residual
     );
-    (e, a)
+    (e, r)
 }
 
 #[test]
