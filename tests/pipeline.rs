@@ -756,3 +756,44 @@ fn landmarks_given_to_process_are_checked_as_the_page_checks_them() {
         .unwrap_or_default();
     assert!(written.is_empty(), "{written:?}");
 }
+
+#[test]
+fn a_station_with_its_own_template_mesh_finds_its_rig_once_at_start_up() {
+    // a user's template without a rig file: the station finds the automatic rig when it
+    // starts (not at every capture), and with `automatic_rig = false` fits none
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let fig = conformd::template::build(conformd::template::Kind::Pig, 3000);
+    conformd::mesh::io::write_mesh(&d.join("own.obj"), &fig.mesh).unwrap();
+    std::fs::write(
+        d.join("own.lm"),
+        conformd::mesh::landmarks::landmarks_text(&fig.landmarks()),
+    )
+    .unwrap();
+    let defs = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/measurements/pig.toml");
+    let (sim, _) = simulated();
+    let write = |align: &str| {
+        let p = d.join("station.toml");
+        std::fs::write(
+            &p,
+            format!(
+                "[station]\nname = \"crate-1\"\ndata = \"data\"\n\
+                 [template]\nmesh = \"own.obj\"\nlandmarks = \"own.lm\"\n\
+                 [measure]\ndefinitions = \"{}\"\n\
+                 [conform.align]\n{align}\n\
+                 [rig]\nfile = \"{}\"\ncalibration = \"{}\"\n",
+                defs.display(),
+                rig_path().display(),
+                sim.path().join("sim/calibration").display()
+            ),
+        )
+        .unwrap();
+        Pipeline::from_config(&StationConfig::load(&p).unwrap()).unwrap()
+    };
+    let found = write("automatic_rig = true");
+    let rig = found.template_rig.as_ref().expect("an automatic rig");
+    assert_eq!(rig.source.to_string(), "automatic");
+    assert_eq!(rig.weights.len(), fig.mesh.vertices.len());
+    assert!(rig.bones.len() > 1, "limbs found: {}", rig.bones.len());
+    assert!(write("automatic_rig = false").template_rig.is_none());
+}

@@ -1105,20 +1105,15 @@ fn automatic_hypotheses(
         h.push(placed(&r));
     }
     rep.limbs_found = found.len();
-    // a template without a rig (a user's own mesh) gets one from its limbs; one the
-    // rig finder cannot make is fitted without
+    // a template without a rig (a user's own mesh) gets one from its limbs (a station
+    // finds it once, at start-up)
     let automatic;
     let rig = match rig {
         Some(r) => Some(r),
-        None if opts.align.automatic_rig && opts.align.limbs > 0 => {
-            let settings = crate::template::rig::AutoRigSettings {
-                limbs: opts.align.limbs,
-                ..Default::default()
-            };
-            automatic = TemplateRig::automatic(template, &settings).ok();
+        None => {
+            automatic = automatic_rig(template, opts);
             automatic.as_ref()
         }
-        None => None,
     };
     let Some(rig) = rig.filter(|_| default_method) else {
         return (h, rep);
@@ -1169,6 +1164,20 @@ fn automatic_hypotheses(
         turns: guess.turns,
     }];
     (h, rep)
+}
+
+/// The rig a template without one is fitted with when `opts` ask for it
+/// (`align.automatic_rig`, limbs searched): found on its limbs; `None` when the rig
+/// finder cannot make one (the fit then runs without).
+pub fn automatic_rig(template: &Mesh, opts: &ConformOptions) -> Option<TemplateRig> {
+    if !opts.align.automatic_rig || opts.align.limbs == 0 {
+        return None;
+    }
+    let settings = crate::template::rig::AutoRigSettings {
+        limbs: opts.align.limbs,
+        ..Default::default()
+    };
+    TemplateRig::automatic(template, &settings).ok()
 }
 
 /// The rig's fit starts the elastic fit only when it scores (distances both ways) this

@@ -1340,12 +1340,13 @@ fn subject_repeatability(
     let kept: Vec<serde_json::Value> = results
         .iter()
         .filter(|(j, _)| {
-            let review = j
+            // as the export: a verdict that cannot be read leaves the result out
+            let left_out = j
                 .result
                 .as_ref()
                 .and_then(|r| data_dir(shared, r).ok())
-                .and_then(|d| crate::station::review::read_in(&d).ok().flatten());
-            !review.is_some_and(|r| r.verdict == Verdict::Rejected)
+                .map(|d| crate::station::review::left_out_in(&d).unwrap_or(true));
+            left_out == Some(false)
         })
         .map(|(_, r)| r.clone())
         .collect();

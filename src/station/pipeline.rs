@@ -550,7 +550,9 @@ impl Pipeline {
         };
         let template_rig = match &figure {
             Some((kind, fig)) => Some(TemplateRig::generic(fig, *kind)),
-            None => source.rig_file(&template)?,
+            None => source
+                .rig_file(&template)?
+                .or_else(|| crate::conform::automatic_rig(&template, &cfg.conform)),
         };
         // each capture's fit would fail on it: said once, here, and by `check`
         cfg.conform

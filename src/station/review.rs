@@ -99,6 +99,11 @@ pub fn left_out(dir: &Path) -> Result<bool, String> {
     read(dir).map(|r| r.is_some_and(|r| r.verdict == Verdict::Rejected))
 }
 
+/// [`left_out`] in a result folder opened without following links.
+pub fn left_out_in(dir: &DataDir) -> Result<bool, String> {
+    read_in(dir).map(|r| r.is_some_and(|r| r.verdict == Verdict::Rejected))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
