@@ -1122,12 +1122,13 @@ fn automatic_hypotheses(
     // pose instead it ended the same on six of eight generic cases and worse on the large
     // postures (a leg left on its neighbour), and fitting both cost twice the time
     let settings = articulated::ArticulatedSettings::default();
+    let fit_rig = articulated::FitRig::new(rig, template, &settings);
     let fits: Vec<articulated::Articulated> = h
         .iter()
         .map(|guess| {
             articulated::fit(
                 template,
-                rig,
+                &fit_rig,
                 surface,
                 &guess.sim,
                 Some(&guess.x),
@@ -1135,7 +1136,7 @@ fn automatic_hypotheses(
             )
         })
         .collect();
-    rep.articulated = Some(articulated::ArticulatedReport::new(rig, &fits));
+    rep.articulated = Some(articulated::ArticulatedReport::new(&fit_rig, &fits));
     // the rig fit's distances both ways tell the placements apart better than the
     // elastic fit's stretch (which kept the cow in the large posture facing backwards):
     // only the best goes on

@@ -613,6 +613,123 @@ impl TemplateRig {
     }
 }
 
+// ---- per-bone proportions ----
+
+/// Factors a bone's length and girth fields take in the fit.
+pub const BONE_FIELD_RANGE: (f64, f64) = (0.6, 1.6);
+/// Bones shorter than this share of the template's diagonal get no fields.
+const MIN_FIELD_BONE: f64 = 0.01;
+
+impl TemplateRig {
+    /// This rig with two shape fields per bone appended: `<bone>.length` stretches the
+    /// bone along its axis (everything below it follows), `<bone>.girth` widens its own
+    /// skin about its axis (the limbs hanging off it move out with it). A subject of
+    /// other proportions (a cow for a pig, one person for another) is then reached by
+    /// the rig, not left to the springs. `rest` is the template the rig belongs to.
+    pub fn with_bone_fields(&self, rest: &[V3]) -> TemplateRig {
+        let nb = self.bones.len();
+        let below: Vec<Vec<bool>> = (0..nb)
+            .map(|b| (0..nb).map(|d| descends(&self.bones, d, b)).collect())
+            .collect();
+        // per vertex, per bone: the weight it and its descendants carry
+        let share = |p: usize, b: usize| -> f64 {
+            self.weights[p]
+                .iter()
+                .filter(|&&(d, _)| below[b][d as usize])
+                .map(|x| x.1)
+                .sum()
+        };
+        let own = |p: usize, b: usize| -> f64 {
+            self.weights[p]
+                .iter()
+                .filter(|&&(d, _)| d as usize == b)
+                .map(|x| x.1)
+                .sum()
+        };
+        let mut out = self.clone();
+        let (lo, hi) = rest.iter().fold(
+            (V3::repeat(f64::INFINITY), V3::repeat(f64::NEG_INFINITY)),
+            |(lo, hi), p| (lo.inf(p), hi.sup(p)),
+        );
+        let shortest = MIN_FIELD_BONE * (hi - lo).norm();
+        for (b, bone) in self.bones.iter().enumerate() {
+            let length = (bone.tail - bone.head).norm();
+            // a bone this short has no axis to stretch or widen about (the automatic
+            // rig's root is a stub)
+            if !(length >= shortest) {
+                continue;
+            }
+            let axis = (bone.tail - bone.head) / length;
+            let along = |q: &V3| axis * (q - bone.head).dot(&axis).clamp(0.0, length);
+            let radial = |q: &V3| {
+                let r = q - bone.head;
+                r - axis * r.dot(&axis)
+            };
+            // the child of `b` each descendant hangs from
+            let child_of = |mut d: usize| -> Option<usize> {
+                while let Some(p) = self.bones[d].parent {
+                    if p == b {
+                        return Some(d);
+                    }
+                    d = p;
+                }
+                None
+            };
+            let length_field = ShapeField {
+                name: format!("{}.length", bone.name),
+                range: BONE_FIELD_RANGE,
+                vertices: rest
+                    .iter()
+                    .enumerate()
+                    .map(|(p, q)| {
+                        let s = share(p, b);
+                        if s > 0.0 { along(q) * s } else { V3::zeros() }
+                    })
+                    .collect(),
+                heads: (0..nb)
+                    .map(|d| {
+                        if below[b][d] && d != b {
+                            along(&self.bones[d].head)
+                        } else {
+                            V3::zeros()
+                        }
+                    })
+                    .collect(),
+            };
+            let children: Vec<usize> = (0..nb)
+                .filter(|&c| self.bones[c].parent == Some(b))
+                .collect();
+            let girth_field = ShapeField {
+                name: format!("{}.girth", bone.name),
+                range: BONE_FIELD_RANGE,
+                vertices: rest
+                    .iter()
+                    .enumerate()
+                    .map(|(p, q)| {
+                        let mut d = radial(q) * own(p, b);
+                        for &c in &children {
+                            let s = share(p, c);
+                            if s > 0.0 {
+                                d += radial(&self.bones[c].head) * s;
+                            }
+                        }
+                        d
+                    })
+                    .collect(),
+                heads: (0..nb)
+                    .map(|d| match child_of(d) {
+                        Some(c) if d != b => radial(&self.bones[c].head),
+                        _ => V3::zeros(),
+                    })
+                    .collect(),
+            };
+            out.shapes.push(length_field);
+            out.shapes.push(girth_field);
+        }
+        out
+    }
+}
+
 /// Whether bone `b` is `ancestor` or below it.
 fn descends(bones: &[RigBone], mut b: usize, ancestor: usize) -> bool {
     loop {
@@ -901,6 +1018,72 @@ mod tests {
         let pelvis = rig.bone("pelvis").unwrap();
         let rise = heads[pelvis].z - rig.bones[pelvis].head.z;
         assert!((rise - 0.2 * 0.9).abs() < 0.03, "{rise}");
+    }
+
+    #[test]
+    fn bone_fields_stretch_and_widen_one_bone() {
+        let fig = template::build(Kind::Body, 2000);
+        let rig = TemplateRig::generic(&fig, Kind::Body);
+        let ext = rig.with_bone_fields(&fig.mesh.vertices);
+        assert_eq!(ext.shapes[..rig.shapes.len()], rig.shapes[..]);
+        ext.check(fig.mesh.vertices.len()).unwrap();
+        let field = |name: &str| ext.shapes.iter().position(|s| s.name == name).unwrap();
+        let at = |name: &str, f: f64| {
+            let mut factors = vec![1.0; ext.shapes.len()];
+            factors[field(name)] = f;
+            ext.reshape(&fig.mesh.vertices, &factors)
+        };
+        let shin = rig.bone("shin_l").unwrap();
+        let foot = rig.bone("foot_l").unwrap();
+        let (b, bone) = (shin, &rig.bones[shin]);
+        let length = (bone.tail - bone.head).norm();
+        // the shin 20% longer: the foot (below it) moves down by a fifth of the shin,
+        // the other leg stays
+        let (v, heads) = at("shin_l.length", 1.2);
+        let moved = heads[foot] - rig.bones[foot].head;
+        assert!((moved.norm() - 0.2 * length).abs() < 1e-9, "{moved}");
+        assert!(moved.z < -0.9 * moved.norm(), "down the shin: {moved}");
+        let other = rig.bone("foot_r").unwrap();
+        assert_eq!(heads[other], rig.bones[other].head);
+        let dom = rig.dominant_bones();
+        let toe = (0..v.len())
+            .filter(|&i| dom[i] as usize == foot)
+            .max_by(|&i, &j| fig.mesh.vertices[i].x.total_cmp(&fig.mesh.vertices[j].x))
+            .unwrap();
+        assert!((v[toe] - fig.mesh.vertices[toe] - moved).norm() < 0.02 * length);
+        // the shin's skin 30% wider about its axis; nothing beyond its weights moves
+        let (v, _) = at("shin_l.girth", 1.3);
+        let axis = (bone.tail - bone.head) / length;
+        let radius = |p: &V3| {
+            let r = p - bone.head;
+            (r - axis * r.dot(&axis)).norm()
+        };
+        // (a vertex the foot does not carry widens by its shin weight's share)
+        let mid: Vec<(usize, f64)> = (0..v.len())
+            .filter(|&i| rig.weights[i].iter().all(|&(k, _)| k as usize != foot))
+            .filter_map(|i| {
+                let w = rig.weights[i].iter().find(|x| x.0 as usize == b)?.1;
+                (w > 0.5).then_some((i, w))
+            })
+            .collect();
+        assert!(mid.len() > 10, "{}", mid.len());
+        for &(i, w) in &mid {
+            let (r0, r1) = (radius(&fig.mesh.vertices[i]), radius(&v[i]));
+            assert!((r1 - (1.0 + 0.3 * w) * r0).abs() < 1e-9, "{r0} -> {r1}");
+        }
+        let head_bone = rig.bone("head").unwrap();
+        let still = (0..v.len())
+            .find(|&i| dom[i] as usize == head_bone)
+            .unwrap();
+        assert_eq!(v[still], fig.mesh.vertices[still]);
+        // an automatic rig's stub of a root gets no fields
+        let auto = TemplateRig::automatic(&fig.mesh, &AutoRigSettings::default()).unwrap();
+        let ext = auto.with_bone_fields(&fig.mesh.vertices);
+        assert!(ext.shapes.iter().all(|s| !s.name.starts_with("body.")));
+        assert_eq!(
+            ext.shapes.len(),
+            auto.shapes.len() + 2 * (auto.bones.len() - 1)
+        );
     }
 
     #[test]
