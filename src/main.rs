@@ -342,6 +342,8 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
             truth,
             truth_scale,
             truth_from_x,
+            confidence,
+            min_confidence,
         } => {
             use conformd::stereo::disparity::{Profile, SgbmOptions};
             let profile = match profile.as_str() {
@@ -353,22 +355,28 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
                     )));
                 }
             };
+            let defaults = SgbmOptions::for_profile(profile);
             let o = SgbmOptions {
                 num_disparities,
                 block_size,
-                ..SgbmOptions::for_profile(profile)
+                min_confidence: min_confidence.unwrap_or(defaults.min_confidence),
+                ..defaults
             };
             let truth = truth.as_deref().map(|file| jobs::TruthArgs {
                 file,
                 scale: truth_scale,
                 min_x: truth_from_x,
             });
-            let (d, score) = jobs::disparity_scored(&left, &right, &o, &out, truth)?;
+            let (d, score) =
+                jobs::disparity_scored(&left, &right, &o, &out, truth, confidence.as_deref())?;
             println!(
                 "{:.1}% of pixels have a disparity\nwrote {}",
                 d.valid_share() * 100.0,
                 out.display()
             );
+            if let Some(c) = &confidence {
+                println!("wrote {} (confidence, 0 to 1)", c.display());
+            }
             if let Some(s) = score {
                 println!("{s}");
             }

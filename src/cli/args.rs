@@ -321,6 +321,15 @@ pub enum Cmd {
         /// image's first columns have no match in the right)
         #[arg(long, default_value_t = 0)]
         truth_from_x: u32,
+        /// write each pixel's confidence in its match here too (.pfm, 0 to 1; 0 where
+        /// no match is kept)
+        #[arg(long)]
+        confidence: Option<PathBuf>,
+        /// drop matches less confident than this (0 to 1): fewer wrong matches, fewer
+        /// matches (the profile's own by default: natural 0.1, speckle 0), as
+        /// `[reconstruct.sgbm] min_confidence` in a rig file
+        #[arg(long)]
+        min_confidence: Option<f64>,
     },
     /// List V4L2 cameras with their stable names, formats, sizes and controls.
     Cameras,

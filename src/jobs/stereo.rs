@@ -528,7 +528,7 @@ pub fn disparity(
     opts: &crate::stereo::disparity::SgbmOptions,
     out: &Path,
 ) -> Result<crate::stereo::disparity::Disparity, JobError> {
-    disparity_scored(left, right, opts, out, None).map(|(d, _)| d)
+    disparity_scored(left, right, opts, out, None, None).map(|(d, _)| d)
 }
 
 /// A ground truth to score a disparity map against: the file, its scale (None: the file
@@ -540,13 +540,16 @@ pub struct TruthArgs<'a> {
 }
 
 /// [`disparity`] scored against a truth: the truth is read first and the map written
-/// only once it is scored, so a bad truth leaves no map behind.
+/// only once it is scored, so a bad truth leaves no map behind. With `confidence_out`,
+/// each pixel's confidence in its match (0 to 1, 0 where none is kept) is written there
+/// as PFM too.
 pub fn disparity_scored(
     left: &Path,
     right: &Path,
     opts: &crate::stereo::disparity::SgbmOptions,
     out: &Path,
     truth: Option<TruthArgs>,
+    confidence_out: Option<&Path>,
 ) -> Result<
     (
         crate::stereo::disparity::Disparity,
@@ -581,9 +584,22 @@ pub fn disparity_scored(
             l.width()
         )));
     }
-    let d =
-        crate::stereo::disparity::disparity(l.as_raw(), r.as_raw(), l.width(), l.height(), opts)
-            .map_err(JobError::Usage)?;
+    if let Some(c) = confidence_out
+        && !c.extension().is_some_and(|e| e.eq_ignore_ascii_case("pfm"))
+    {
+        return Err(JobError::Usage(format!(
+            "{}: a confidence map is written as .pfm (float, 0 to 1)",
+            c.display()
+        )));
+    }
+    let (d, confidence) = crate::stereo::disparity::disparity_with_confidence(
+        l.as_raw(),
+        r.as_raw(),
+        l.width(),
+        l.height(),
+        opts,
+    )
+    .map_err(JobError::Usage)?;
     if d.valid_share() == 0.0 {
         return Err(JobError::Usage(format!(
             "no pixel of {} found its match in {}: the pair has no texture to match (or is not a rectified pair)",
@@ -616,6 +632,12 @@ pub fn disparity_scored(
         })
         .transpose()?;
     write_atomic(out, &bytes)?;
+    if let Some(c) = confidence_out {
+        write_atomic(
+            c,
+            &crate::stereo::disparity::pfm_bytes(d.width, d.height, &confidence),
+        )?;
+    }
     Ok((d, score))
 }
 

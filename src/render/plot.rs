@@ -1,5 +1,5 @@
-//! History plots of a subject's results (measurements and weight over time), drawn with
-//! `plotters` into a PNG. Text needs a TrueType font: DejaVu Sans from Debian's
+//! Plots drawn with `plotters` into a PNG: a subject's history (measurements and weight over
+//! time) and x-y curves (a stereo matcher's wrong matches against its coverage). Text needs a TrueType font: DejaVu Sans from Debian's
 //! fonts-dejavu-core (installed by `make`); without it the plot is drawn unlabelled.
 
 use plotters::prelude::*;
@@ -44,6 +44,115 @@ pub fn time_axis(span_days: f64) -> (f64, &'static str) {
     }
 }
 
+/// One panel: `series` as lines with points, axes described by `desc` (x, y) when
+/// `text` (a font) is there, a legend at the upper left.
+fn draw_panel(
+    panel: &DrawingArea<BitMapBackend, plotters::coord::Shift>,
+    series: &[&Series],
+    desc: (&str, &str),
+    text: bool,
+) -> Result<(), String> {
+    let (mut x0, mut x1, mut y0, mut y1) = (
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+    );
+    for p in series.iter().flat_map(|s| &s.points) {
+        x0 = x0.min(p.0);
+        x1 = x1.max(p.0);
+        y0 = y0.min(p.1);
+        y1 = y1.max(p.1);
+    }
+    if !x0.is_finite() {
+        return Ok(());
+    }
+    let (xpad, ypad) = (
+        ((x1 - x0) * 0.05).max(0.5),
+        ((y1 - y0) * 0.1).max(y1.abs() * 0.01 + 1e-9),
+    );
+    let mut b = ChartBuilder::on(panel);
+    b.margin(8);
+    if text {
+        b.x_label_area_size(28).y_label_area_size(56);
+    }
+    let mut chart = b
+        .build_cartesian_2d((x0 - xpad)..(x1 + xpad), (y0 - ypad)..(y1 + ypad))
+        .map_err(|e| e.to_string())?;
+    let mut mesh = chart.configure_mesh();
+    if text {
+        mesh.x_desc(desc.0).y_desc(desc.1);
+    } else {
+        mesh.disable_x_axis().disable_y_axis();
+    }
+    mesh.draw().map_err(|e| e.to_string())?;
+    let colours = [RED, BLUE, GREEN, MAGENTA, CYAN, BLACK];
+    for (k, s) in series.iter().enumerate() {
+        let c = colours[k % colours.len()];
+        let drawn = chart
+            .draw_series(LineSeries::new(s.points.iter().copied(), c.stroke_width(2)))
+            .map_err(|e| e.to_string())?;
+        if text {
+            drawn.label(s.name.clone()).legend(move |(x, y)| {
+                PathElement::new(vec![(x, y), (x + 16, y)], c.stroke_width(2))
+            });
+        }
+        chart
+            .draw_series(s.points.iter().map(|&p| Circle::new(p, 3, c.filled())))
+            .map_err(|e| e.to_string())?;
+    }
+    if text {
+        chart
+            .configure_series_labels()
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .position(SeriesLabelPosition::UpperLeft)
+            .draw()
+            .map_err(|e| e.to_string())?;
+    }
+    Ok(())
+}
+
+/// A PNG of `series` in one panel, x and y described by `desc`, `title` above: e.g. a
+/// stereo matcher's wrong matches against its coverage.
+pub fn xy_png(
+    title: &str,
+    desc: (&str, &str),
+    series: &[Series],
+    width: u32,
+    height: u32,
+) -> Result<Vec<u8>, String> {
+    let mine: Vec<&Series> = series.iter().collect();
+    drawn_png(title, width, height, |area, text| {
+        draw_panel(area, &mine, desc, text)
+    })
+}
+
+/// A `width` x `height` PNG drawn by `draw` (given the area under `title` and whether
+/// text can be drawn).
+fn drawn_png(
+    title: &str,
+    width: u32,
+    height: u32,
+    draw: impl FnOnce(&DrawingArea<BitMapBackend, plotters::coord::Shift>, bool) -> Result<(), String>,
+) -> Result<Vec<u8>, String> {
+    let text = font();
+    let mut buf = vec![255u8; (width * height * 3) as usize];
+    {
+        let root = BitMapBackend::with_buffer(&mut buf, (width, height)).into_drawing_area();
+        let area = if text {
+            root.titled(title, ("sans-serif", 18))
+                .map_err(|e| e.to_string())?
+        } else {
+            root.clone()
+        };
+        draw(&area, text)?;
+        root.present().map_err(|e| e.to_string())?;
+    }
+    let img = image::RgbImage::from_raw(width, height, buf).ok_or("plot buffer size")?;
+    Ok(super::png_bytes(&img))
+}
+
 /// A PNG of panels stacked top to bottom, one per unit (kg, m, m^3 ...), each with its
 /// series as lines with points; `title` above. The x axis is time since `since` (a
 /// date, shown in the axis label) in hours, days or months as the span needs.
@@ -76,82 +185,14 @@ pub fn history_png(
             units.push(&s.unit);
         }
     }
-    let text = font();
-    let mut buf = vec![255u8; (width * height * 3) as usize];
-    {
-        let root = BitMapBackend::with_buffer(&mut buf, (width, height)).into_drawing_area();
-        let area = if text {
-            root.titled(title, ("sans-serif", 18))
-                .map_err(|e| e.to_string())?
-        } else {
-            root.clone()
-        };
+    drawn_png(title, width, height, |area, text| {
         let panels = area.split_evenly((units.len().max(1), 1));
-        let colours = [RED, BLUE, GREEN, MAGENTA, CYAN, BLACK];
         for (panel, unit) in panels.iter().zip(&units) {
             let mine: Vec<&Series> = series.iter().filter(|s| &s.unit == unit).collect();
-            let (mut x0, mut x1, mut y0, mut y1) = (
-                f64::INFINITY,
-                f64::NEG_INFINITY,
-                f64::INFINITY,
-                f64::NEG_INFINITY,
-            );
-            for p in mine.iter().flat_map(|s| &s.points) {
-                x0 = x0.min(p.0);
-                x1 = x1.max(p.0);
-                y0 = y0.min(p.1);
-                y1 = y1.max(p.1);
-            }
-            if !x0.is_finite() {
-                continue;
-            }
-            let (xpad, ypad) = (
-                ((x1 - x0) * 0.05).max(0.5),
-                ((y1 - y0) * 0.1).max(y1.abs() * 0.01 + 1e-9),
-            );
-            let mut b = ChartBuilder::on(panel);
-            b.margin(8);
-            if text {
-                b.x_label_area_size(28).y_label_area_size(56);
-            }
-            let mut chart = b
-                .build_cartesian_2d((x0 - xpad)..(x1 + xpad), (y0 - ypad)..(y1 + ypad))
-                .map_err(|e| e.to_string())?;
-            let mut mesh = chart.configure_mesh();
-            if text {
-                mesh.x_desc(x_desc.as_str()).y_desc(*unit);
-            } else {
-                mesh.disable_x_axis().disable_y_axis();
-            }
-            mesh.draw().map_err(|e| e.to_string())?;
-            for (k, s) in mine.iter().enumerate() {
-                let c = colours[k % colours.len()];
-                let drawn = chart
-                    .draw_series(LineSeries::new(s.points.iter().copied(), c.stroke_width(2)))
-                    .map_err(|e| e.to_string())?;
-                if text {
-                    drawn.label(s.name.clone()).legend(move |(x, y)| {
-                        PathElement::new(vec![(x, y), (x + 16, y)], c.stroke_width(2))
-                    });
-                }
-                chart
-                    .draw_series(s.points.iter().map(|&p| Circle::new(p, 3, c.filled())))
-                    .map_err(|e| e.to_string())?;
-            }
-            if text {
-                chart
-                    .configure_series_labels()
-                    .background_style(WHITE.mix(0.8))
-                    .border_style(BLACK)
-                    .position(SeriesLabelPosition::UpperLeft)
-                    .draw()
-                    .map_err(|e| e.to_string())?;
-            }
+            draw_panel(panel, &mine, (x_desc.as_str(), unit), text)?;
         }
-        root.present().map_err(|e| e.to_string())?;
-    }
-    let img = image::RgbImage::from_raw(width, height, buf).ok_or("plot buffer size")?;
-    Ok(super::png_bytes(&img))
+        Ok(())
+    })
 }
 
 #[cfg(test)]

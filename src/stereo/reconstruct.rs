@@ -514,17 +514,19 @@ pub fn pod_grid(
     // matched only over the window (rows are epipolar lines, so a band of rows is
     // matched as in the whole image); the rest has no match
     let matched = match window {
-        None => match_pair(&lr, &rr, Some(&rectifier.grids), o)?,
+        None => match_pair(&lr, &rr, Some(&rectifier.grids), o, false)?,
         Some((x, y, ww, wh)) => {
             let rect = core::Rect::new(x, y, ww, wh);
             let crop = |m: &Mat| -> opencv::Result<Mat> { Mat::roi(m, rect)?.try_clone() };
-            let mut m = match_pair(&crop(&lr)?, &crop(&rr)?, None, o)?;
+            let mut m = match_pair(&crop(&lr)?, &crop(&rr)?, None, o, false)?;
             let mut full = vec![f32::INFINITY; (w * h) as usize];
             for (r, row) in m.values.chunks(ww as usize).enumerate() {
                 let at = (y as usize + r) * w as usize + x as usize;
                 full[at..at + ww as usize].copy_from_slice(row);
             }
             m.values = full;
+            // (of the window's pixels only; the scan does not read it)
+            m.confidence = Vec::new();
             m
         }
     };

@@ -324,6 +324,41 @@ pub fn score(d: &Disparity, truth: &Truth, min_x: u32) -> Result<TruthScore, Str
     })
 }
 
+/// [`score`] of the most confident pixels of `d` only, up to `coverage` (a share of the
+/// known pixels at column `min_x` or beyond): how many wrong matches a map has at another
+/// map's coverage. `confidence`: per pixel, higher is surer.
+pub fn score_at_coverage(
+    d: &Disparity,
+    confidence: &[f32],
+    truth: &Truth,
+    min_x: u32,
+    coverage: f64,
+) -> Result<TruthScore, String> {
+    if confidence.len() != d.values.len() {
+        return Err(format!(
+            "{} confidences for {} pixels",
+            confidence.len(),
+            d.values.len()
+        ));
+    }
+    let counted = |k: usize| (k as u32 % d.width) >= min_x && !truth.values[k].is_nan();
+    let known = (0..d.values.len()).filter(|&k| counted(k)).count();
+    let mut order: Vec<usize> = (0..d.values.len())
+        .filter(|&k| counted(k) && d.values[k].is_finite())
+        .collect();
+    order.sort_by(|&a, &b| confidence[b].total_cmp(&confidence[a]));
+    order.truncate((coverage * known as f64).round() as usize);
+    let mut top = Disparity {
+        width: d.width,
+        height: d.height,
+        values: vec![f32::INFINITY; d.values.len()],
+    };
+    for k in order {
+        top.values[k] = d.values[k];
+    }
+    score(&top, truth, min_x)
+}
+
 /// The median ratio of the map's disparities to the truth's where both are known, when
 /// it is far from 1 (outside 0.8-1.25): a truth read with the wrong scale, which would
 /// make every figure meaningless. None when they agree or too few pixels overlap.
