@@ -62,9 +62,45 @@ impl Skeleton {
 
     /// Signed distance (approximately) to the blended surface: negative inside.
     pub fn sdf(&self, p: &V3) -> f64 {
-        let k = self.blend;
+        Field::new(self).at(p)
+    }
+}
+
+/// A skeleton's distance field with each bone's bounding sphere, so that a bone too far
+/// from a point to change the blend is not measured (meshing a template calls it a few
+/// hundred thousand times).
+struct Field<'a> {
+    skel: &'a Skeleton,
+    /// per bone: the middle of its axis, and the farthest its surface reaches from it
+    spheres: Vec<(V3, f64)>,
+}
+
+impl<'a> Field<'a> {
+    fn new(skel: &'a Skeleton) -> Self {
+        Field {
+            skel,
+            spheres: skel
+                .bones
+                .iter()
+                .map(|b| {
+                    let reach = 0.5 * (b.tail - b.head).norm() + b.r_head.max(b.r_tail);
+                    ((b.head + b.tail) / 2.0, reach)
+                })
+                .collect(),
+        }
+    }
+
+    /// [`Skeleton::sdf`]: the same value to the bit. A bone whose distance is at least
+    /// twice the blend beyond the running minimum leaves it as it is (the smooth
+    /// minimum's weight is then exactly 0, rounding or not), and its sphere bounds that
+    /// distance from below.
+    fn at(&self, p: &V3) -> f64 {
+        let k = self.skel.blend;
         let mut d = f64::INFINITY;
-        for b in &self.bones {
+        for (b, (mid, reach)) in self.skel.bones.iter().zip(&self.spheres) {
+            if d.is_finite() && (p - mid).norm() - reach >= d + 2.0 * k {
+                continue;
+            }
             let db = round_cone(p, b);
             // polynomial smooth minimum
             d = if d.is_infinite() {
@@ -278,16 +314,16 @@ fn sample(skel: &Skeleton, target_vertices: usize) -> Mesh {
     let (lo, hi) = bounds(skel);
     let area_guess = {
         // one coarse pass measures the surface to choose the grid step
-        let m = mesh_sdf(skel, lo, hi, (hi - lo).max() / 40.0);
+        let m = mesh_sdf(skel, lo, hi, (hi - lo).max() / 40.0, BAND);
         m.area()
     };
     // marching tetrahedra give about 1.3 vertices per h^2 of surface here (measured)
     let mut h = (1.3 * area_guess / target_vertices as f64).sqrt();
-    let mut mesh = mesh_sdf(skel, lo, hi, h);
+    let mut mesh = mesh_sdf(skel, lo, hi, h, BAND);
     let ratio = mesh.vertices.len() as f64 / target_vertices as f64;
     if !(0.9..=1.1).contains(&ratio) {
         h *= ratio.sqrt();
-        mesh = mesh_sdf(skel, lo, hi, h);
+        mesh = mesh_sdf(skel, lo, hi, h, BAND);
     }
     relax(&mut mesh, skel, 6);
     mesh
@@ -307,9 +343,16 @@ fn bounds(skel: &Skeleton) -> (V3, V3) {
     (lo - V3::repeat(pad), hi + V3::repeat(pad))
 }
 
+/// The coarse grid's step, in fine grid steps.
+const BAND: usize = 4;
+/// How much faster than distance the skeleton's field may change (its round cones'
+/// radii vary along their axes, so it is not exactly a distance): the band's margin.
+const FIELD_SLOPE: f64 = 1.5;
+
 /// Marching tetrahedra (six per grid cube, sharing the main diagonal, so neighbouring
-/// cubes split their faces alike and the surface is closed).
-fn mesh_sdf(skel: &Skeleton, lo: V3, hi: V3, h: f64) -> Mesh {
+/// cubes split their faces alike and the surface is closed); the field found exactly only
+/// near the surface, on a grid `band` times coarser first (1: everywhere).
+fn mesh_sdf(skel: &Skeleton, lo: V3, hi: V3, h: f64, band: usize) -> Mesh {
     use rayon::prelude::*;
     let dims = ((hi - lo) / h).map(|d| d.ceil() as usize + 1);
     let (nx, ny, nz) = (dims.x, dims.y, dims.z);
@@ -318,10 +361,40 @@ fn mesh_sdf(skel: &Skeleton, lo: V3, hi: V3, h: f64) -> Mesh {
         let (i, j, k) = (id % nx, (id / nx) % ny, id / (nx * ny));
         lo + V3::new(i as f64, j as f64, k as f64) * h
     };
+    let sdf = Field::new(skel);
+    // the field on a grid `band` times coarser first: a node whose nearest coarse node is
+    // far from the surface (its distance beyond what the field can change over the gap,
+    // with room to spare) lies on no edge the surface crosses, and takes the coarse
+    // value: only its sign is read
+    let coarse_dims = (
+        nx.div_ceil(band) + 1,
+        ny.div_ceil(band) + 1,
+        nz.div_ceil(band) + 1,
+    );
+    let coarse: Vec<f64> = (0..coarse_dims.0 * coarse_dims.1 * coarse_dims.2)
+        .into_par_iter()
+        .map(|id| {
+            let (i, j, k) = (
+                id % coarse_dims.0,
+                (id / coarse_dims.0) % coarse_dims.1,
+                id / (coarse_dims.0 * coarse_dims.1),
+            );
+            sdf.at(&(lo + V3::new(i as f64, j as f64, k as f64) * (h * band as f64)))
+        })
+        .collect();
+    let far = FIELD_SLOPE * (band as f64 / 2.0) * 3f64.sqrt() * h + 3.0 * h;
     let field: Vec<f64> = (0..nx * ny * nz)
         .into_par_iter()
         .map(|id| {
-            let f = skel.sdf(&pos(id));
+            let (i, j, k) = (id % nx, (id / nx) % ny, id / (nx * ny));
+            let near = |n: usize, dim: usize| ((n + band / 2) / band).min(dim - 1);
+            let c = coarse[(near(k, coarse_dims.2) * coarse_dims.1 + near(j, coarse_dims.1))
+                * coarse_dims.0
+                + near(i, coarse_dims.0)];
+            if c.abs() > far {
+                return c;
+            }
+            let f = sdf.at(&pos(id));
             // no value exactly zero: a zero would make degenerate triangles
             if f.abs() < 1e-9 * h { 1e-9 * h } else { f }
         })
@@ -406,12 +479,13 @@ fn mesh_sdf(skel: &Skeleton, lo: V3, hi: V3, h: f64) -> Mesh {
 fn relax(mesh: &mut Mesh, skel: &Skeleton, rounds: usize) {
     use rayon::prelude::*;
     let nb = topology::vertex_neighbours(mesh.vertices.len(), &mesh.triangles);
+    let sdf = Field::new(skel);
     let grad = |p: &V3| {
         let e = 1e-5;
         V3::new(
-            skel.sdf(&(p + V3::x() * e)) - skel.sdf(&(p - V3::x() * e)),
-            skel.sdf(&(p + V3::y() * e)) - skel.sdf(&(p - V3::y() * e)),
-            skel.sdf(&(p + V3::z() * e)) - skel.sdf(&(p - V3::z() * e)),
+            sdf.at(&(p + V3::x() * e)) - sdf.at(&(p - V3::x() * e)),
+            sdf.at(&(p + V3::y() * e)) - sdf.at(&(p - V3::y() * e)),
+            sdf.at(&(p + V3::z() * e)) - sdf.at(&(p - V3::z() * e)),
         ) / (2.0 * e)
     };
     for _ in 0..rounds {
@@ -430,7 +504,7 @@ fn relax(mesh: &mut Mesh, skel: &Skeleton, rounds: usize) {
                     let g = grad(&p);
                     let g2 = g.norm_squared();
                     if g2 > 1e-12 {
-                        p -= g * (skel.sdf(&p) / g2);
+                        p -= g * (sdf.at(&p) / g2);
                     }
                 }
                 p
@@ -578,5 +652,55 @@ impl Figure {
                 }
             })
             .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::template::{Kind, skeleton};
+
+    /// The field measured over every bone, as before the bounding spheres.
+    fn every_bone(skel: &Skeleton, p: &V3) -> f64 {
+        let k = skel.blend;
+        let mut d = f64::INFINITY;
+        for b in &skel.bones {
+            let db = round_cone(p, b);
+            d = if d.is_infinite() {
+                db
+            } else {
+                let h = (0.5 + 0.5 * (db - d) / k).clamp(0.0, 1.0);
+                db * (1.0 - h) + d * h - k * h * (1.0 - h)
+            };
+        }
+        d
+    }
+
+    #[test]
+    fn the_culled_field_and_the_band_change_nothing() {
+        for kind in [Kind::Pig, Kind::Body] {
+            let skel = skeleton(kind);
+            let (lo, hi) = bounds(&skel);
+            // every point of a 40^3 lattice over the figure, to the bit
+            let n = 40;
+            for id in 0..n * n * n {
+                let t = V3::new(
+                    (id % n) as f64 / (n - 1) as f64,
+                    ((id / n) % n) as f64 / (n - 1) as f64,
+                    (id / (n * n)) as f64 / (n - 1) as f64,
+                );
+                let p = lo + (hi - lo).component_mul(&t);
+                assert_eq!(Field::new(&skel).at(&p), every_bone(&skel, &p), "{p}");
+            }
+            // the surface meshed through the band is the surface meshed everywhere
+            let h = (hi - lo).max() / 90.0;
+            let (a, b) = (
+                mesh_sdf(&skel, lo, hi, h, BAND),
+                mesh_sdf(&skel, lo, hi, h, 1),
+            );
+            assert!(a.vertices.len() > 2000, "{}", a.vertices.len());
+            assert_eq!(a.vertices, b.vertices);
+            assert_eq!(a.triangles, b.triangles);
+        }
     }
 }
