@@ -559,3 +559,145 @@ fn a_journal_server_that_never_answers_hangs_neither_the_worker_nor_the_daemon()
         daemon.try_wait().unwrap().is_some()
     });
 }
+
+/// Issue 45, item 6: a job that fails is queued again after a back-off (5 s, then 20 s
+/// ...), up to `max_attempts`, then failed for good; one that runs past the job time
+/// limit is stopped (its process killed, not left running) and counts as an attempt.
+/// On the SQLite journal, through the runner the daemon and `conformd worker` share.
+#[test]
+fn failing_jobs_are_retried_with_back_off_up_to_max_attempts_and_slow_ones_stopped() {
+    use conformd::daemon::runner::{self, Ended, JobSpec, Recorded};
+    assert_eq!(
+        [1, 2, 3, 4, 12].map(runner::backoff_s),
+        [5.0, 20.0, 80.0, 320.0, 3600.0]
+    );
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    std::fs::create_dir_all(data.join("results")).unwrap();
+    let db = data.join("journal.sqlite");
+    let mut j = journal::open_sqlite(&db, &data).unwrap();
+    let id = enqueue(&mut j, &data, "retry", 1).remove(0);
+    // the job's program: the first run fails as a reconstruction would (not the
+    // capture's fault), the next ones hang past the time limit; each run logs its pid
+    let program = dir.path().join("flaky.sh");
+    std::fs::write(
+        &program,
+        r#"#!/bin/bash
+log="$6/../runs.log"
+echo "$$" >> "$log"
+if [ "$(wc -l < "$log")" -eq 1 ]; then
+  echo '{"ok":false,"stage":"reconstruct","error":"the disk went away","permanent":false}'
+  exit 1
+fi
+exec sleep 60
+"#,
+    )
+    .unwrap();
+    Command::new("chmod")
+        .arg("+x")
+        .arg(&program)
+        .status()
+        .unwrap();
+    let spec = JobSpec {
+        exe: program,
+        config: dir.path().join("station.toml"),
+        results: data.join("results"),
+        landmarks: data.join("landmarks"),
+        threads: 1,
+        timeout: Duration::from_secs(1),
+        max_attempts: 3,
+    };
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    let abort = tokio::sync::Notify::new();
+    let pids = || -> Vec<i32> {
+        std::fs::read_to_string(data.join("runs.log"))
+            .unwrap_or_default()
+            .lines()
+            .map(|l| l.trim().parse().unwrap())
+            .collect()
+    };
+    let mut outcomes = Vec::new();
+    for attempt in 1..=3u32 {
+        let job = j.claim("w1", 60.0).unwrap().expect("the job is due");
+        assert_eq!(job.attempts, attempt);
+        let started = Instant::now();
+        let ended = rt.block_on(runner::run_child(&spec, &job, &abort));
+        let took = started.elapsed();
+        let now = journal::now();
+        let recorded = runner::record(&mut j, "w1", &job, ended, &spec).unwrap();
+        let after = j.get(&id).unwrap().unwrap();
+        match attempt {
+            1 => {
+                assert!(matches!(recorded, Recorded::Failed { retry: true }));
+                assert_eq!(after.stage.as_deref(), Some("reconstruct"));
+            }
+            _ => {
+                // stopped at the limit, not after the program's 60 s, and killed
+                assert!(
+                    took >= Duration::from_millis(900) && took < Duration::from_secs(20),
+                    "{took:?}"
+                );
+                // (killed: gone, or dead and waiting for the runtime to reap it)
+                let pid = *pids().last().unwrap();
+                let running = || {
+                    std::fs::read_to_string(format!("/proc/{pid}/stat"))
+                        .ok()
+                        .and_then(|s| {
+                            let state = s.rsplit(')').next()?.split_whitespace().next()?;
+                            Some(state != "Z" && state != "X")
+                        })
+                        .unwrap_or(false)
+                };
+                let since = Instant::now();
+                while running() && since.elapsed() < Duration::from_secs(10) {
+                    std::thread::sleep(Duration::from_millis(20));
+                }
+                assert!(
+                    !running(),
+                    "the timed-out job's process {pid} is still running"
+                );
+                assert!(
+                    after
+                        .error
+                        .as_deref()
+                        .unwrap_or("")
+                        .contains("time limit of 1 s"),
+                    "{:?}",
+                    after.error
+                );
+                assert!(matches!(
+                    recorded,
+                    Recorded::TimedOut { retry } if retry == (attempt < 3)
+                ));
+            }
+        }
+        if attempt < 3 {
+            // queued again, due after the back-off for this attempt, not before
+            assert_eq!(after.state, State::Queued);
+            let wait = after.not_before - now;
+            let want = runner::backoff_s(attempt);
+            assert!((wait - want).abs() < 2.0, "due in {wait} s, want {want}");
+            assert!(j.claim("w1", 60.0).unwrap().is_none(), "claimed before due");
+            // (the test does not wait the back-off out: the job is made due now)
+            let c = rusqlite::Connection::open(&db).unwrap();
+            c.execute(
+                "UPDATE captures SET not_before = 0 WHERE id = ?1",
+                [id.as_str()],
+            )
+            .unwrap();
+        } else {
+            assert_eq!(
+                after.state,
+                State::Failed,
+                "failed for good after 3 attempts"
+            );
+            assert_eq!(after.attempts, 3);
+            assert!(j.claim("w1", 60.0).unwrap().is_none());
+        }
+        outcomes.push(format!("{recorded:?}"));
+    }
+    assert_eq!(pids().len(), 3, "one run per attempt: {outcomes:?}");
+}
