@@ -566,7 +566,7 @@ fn a_journal_server_that_never_answers_hangs_neither_the_worker_nor_the_daemon()
 /// On the SQLite journal, through the runner the daemon and `conformd worker` share.
 #[test]
 fn failing_jobs_are_retried_with_back_off_up_to_max_attempts_and_slow_ones_stopped() {
-    use conformd::daemon::runner::{self, Ended, JobSpec, Recorded};
+    use conformd::daemon::runner::{self, JobSpec, Recorded};
     assert_eq!(
         [1, 2, 3, 4, 12].map(runner::backoff_s),
         [5.0, 20.0, 80.0, 320.0, 3600.0]
