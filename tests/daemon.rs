@@ -234,6 +234,17 @@ fn request_with(
     body: Option<&[u8]>,
     headers: &[(&str, &str)],
 ) -> (u16, String) {
+    let (status, bytes) = request_bytes(method, url, body, headers);
+    (status, String::from_utf8_lossy(&bytes).to_string())
+}
+
+/// [`request_with`], the body as it came.
+fn request_bytes(
+    method: &str,
+    url: &str,
+    body: Option<&[u8]>,
+    headers: &[(&str, &str)],
+) -> (u16, Vec<u8>) {
     let agent: ureq::Agent = ureq::Agent::config_builder()
         .http_status_as_error(false)
         .timeout_global(Some(Duration::from_secs(60)))
@@ -261,11 +272,9 @@ fn request_with(
     match r {
         Ok(mut resp) => {
             let status = resp.status().as_u16();
-            let bytes = resp.body_mut().read_to_vec().unwrap_or_default();
-            let text = String::from_utf8_lossy(&bytes).to_string();
-            (status, text)
+            (status, resp.body_mut().read_to_vec().unwrap_or_default())
         }
-        Err(e) => (0, e.to_string()),
+        Err(e) => (0, e.to_string().into_bytes()),
     }
 }
 
@@ -434,10 +443,28 @@ fn captures_fired_through_the_box_are_processed_and_the_api_agrees() {
         };
         assert!(at("total") > at("reconstruct"), "{stages}");
         assert!(!page.contains("{\""), "raw JSON on the page: {page}");
-        for file in ["conformed.ply", "scan.ply", "report.json"] {
-            let (code, body) = daemon.get(&format!("/api/captures/{id}/{file}"));
+        // the downloads are the result's files, byte for byte
+        for file in ["conformed.ply", "scan.ply", "report.json", "preview.png"] {
+            let url = daemon.url(&format!("/api/captures/{id}/{file}"));
+            let (code, body) = request_bytes("GET", &url, None, &[]);
+            let on_disk = std::fs::read(d.join("data/results").join(id).join(file)).unwrap();
             assert!(code == 200 && body.len() > 100, "{id}/{file}: {code}");
+            assert!(body == on_disk, "{id}/{file}: not the file on disk");
         }
+        let (_, conformed) = request_bytes(
+            "GET",
+            &daemon.url(&format!("/api/captures/{id}/conformed.ply")),
+            None,
+            &[],
+        );
+        let mesh = conformd::mesh::io::read_ply_bytes("conformed.ply", &conformed).unwrap();
+        assert!(mesh.vertices.len() > 1000 && !mesh.triangles.is_empty());
+    }
+    // `?limit` keeps the list to as many
+    for (limit, want) in [(2, 2), (1, 1), (50, 5)] {
+        let (code, body) = daemon.get(&format!("/api/captures?state=done&limit={limit}"));
+        let got: Vec<serde_json::Value> = serde_json::from_str(&body).unwrap();
+        assert!(code == 200 && got.len() == want, "limit {limit}: {body}");
     }
     let mut j = journal(d);
     assert_eq!(j.counts().unwrap().done, 5);
