@@ -621,6 +621,15 @@ fn burst(watch: bool) {
     let port = free_port();
     let watch = watch.to_string();
     let cfg = station(d, port, "", &[("rescan_s", "2.0"), ("watch", &watch)]);
+    // the shape model rebuilt on its own every 40 results, never asked for
+    let text = std::fs::read_to_string(&cfg).unwrap();
+    let model = "[model]\nfile = \"data/model.json\"\n";
+    assert!(text.contains(model));
+    std::fs::write(
+        &cfg,
+        text.replace(model, &format!("{model}rebuild_every = 40\n")),
+    )
+    .unwrap();
     std::fs::create_dir_all(d.join("data/incoming")).unwrap();
     let daemon = Daemon::start(&cfg, port, &[]);
     // 100 sets made aside, then renamed into incoming/ at once
@@ -665,6 +674,17 @@ fn burst(watch: bool) {
     assert!(hidden.is_empty());
     // measured 152-161 MB (README); 2.5x for another machine's allocator and page cache
     assert!(peak_mb < 400.0, "peak memory {peak_mb:.0} MB");
+    // rebuilt after the 40th and the 80th result (each from the results done by then)
+    daemon.wait_for(Duration::from_secs(60), "the model rebuilt", |d| {
+        d.status()["model_exists"] == true && d.status()["model_rebuilding"] == false
+    });
+    let model: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(d.join("data/model.json")).unwrap()).unwrap();
+    let samples = model["samples"].as_array().unwrap().len();
+    assert!(
+        (80..=n).contains(&samples),
+        "the model holds {samples} results"
+    );
 }
 
 #[test]
