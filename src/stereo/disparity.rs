@@ -387,7 +387,7 @@ pub struct Matched {
 /// texture mask (`min_contrast`); the edge margin (a jump of over `max_jump`, or an
 /// unmatched pixel, within `edge_margin`); the full left-right check (`cross_check`) and
 /// the `occlusion_margin` beside what it dropped; the confidence cut (`min_confidence`).
-/// `grids`: [`pixel_grids`] of the pair's size, if the caller keeps them; `confidence`:
+/// `grids`: [`pixel_grids`] of the pair's size, if the caller keeps them; `want_confidence`:
 /// whether the caller wants each pixel's confidence (it costs about 0.04 s a 1280x960
 /// pair, so a station whose rig file does not cut by it does not pay for it).
 pub fn match_pair(
@@ -395,9 +395,8 @@ pub fn match_pair(
     right: &Mat,
     grids: Option<&(Mat, Mat)>,
     o: &SgbmOptions,
-    confidence: bool,
+    want_confidence: bool,
 ) -> opencv::Result<Matched> {
-    let want_confidence = confidence;
     let (w, h) = (left.cols() as usize, left.rows() as usize);
     let d16 = disparity_mats(left, right, o)?;
     let mut sgbm = Mat::default();

@@ -60,10 +60,26 @@ impl Skeleton {
         });
     }
 
-    /// Signed distance (approximately) to the blended surface: negative inside.
+    /// Signed distance (approximately) to the blended surface: negative inside. Every
+    /// bone measured; [`Field`] gives the same value faster for many points.
     pub fn sdf(&self, p: &V3) -> f64 {
-        Field::new(self).at(p)
+        let k = self.blend;
+        let mut d = f64::INFINITY;
+        for b in &self.bones {
+            d = smooth_min(d, round_cone(p, b), k);
+        }
+        d
     }
+}
+
+/// The polynomial smooth minimum of the running distance `d` and a bone's `db`, blend
+/// `k` (the first bone's distance as it is).
+fn smooth_min(d: f64, db: f64, k: f64) -> f64 {
+    if d.is_infinite() {
+        return db;
+    }
+    let h = (0.5 + 0.5 * (db - d) / k).clamp(0.0, 1.0);
+    db * (1.0 - h) + d * h - k * h * (1.0 - h)
 }
 
 /// A skeleton's distance field with each bone's bounding sphere, so that a bone too far
@@ -101,14 +117,7 @@ impl<'a> Field<'a> {
             if d.is_finite() && (p - mid).norm() - reach >= d + 2.0 * k {
                 continue;
             }
-            let db = round_cone(p, b);
-            // polynomial smooth minimum
-            d = if d.is_infinite() {
-                db
-            } else {
-                let h = (0.5 + 0.5 * (db - d) / k).clamp(0.0, 1.0);
-                db * (1.0 - h) + d * h - k * h * (1.0 - h)
-            };
+            d = smooth_min(d, round_cone(p, b), k);
         }
         d
     }
@@ -660,22 +669,6 @@ mod tests {
     use super::*;
     use crate::template::{Kind, skeleton};
 
-    /// The field measured over every bone, as before the bounding spheres.
-    fn every_bone(skel: &Skeleton, p: &V3) -> f64 {
-        let k = skel.blend;
-        let mut d = f64::INFINITY;
-        for b in &skel.bones {
-            let db = round_cone(p, b);
-            d = if d.is_infinite() {
-                db
-            } else {
-                let h = (0.5 + 0.5 * (db - d) / k).clamp(0.0, 1.0);
-                db * (1.0 - h) + d * h - k * h * (1.0 - h)
-            };
-        }
-        d
-    }
-
     #[test]
     fn the_culled_field_and_the_band_change_nothing() {
         for kind in [Kind::Pig, Kind::Body] {
@@ -690,7 +683,7 @@ mod tests {
                     (id / (n * n)) as f64 / (n - 1) as f64,
                 );
                 let p = lo + (hi - lo).component_mul(&t);
-                assert_eq!(Field::new(&skel).at(&p), every_bone(&skel, &p), "{p}");
+                assert_eq!(Field::new(&skel).at(&p), skel.sdf(&p), "{p}");
             }
             // the surface meshed through the band is the surface meshed everywhere
             let h = (hi - lo).max() / 90.0;
