@@ -420,7 +420,7 @@ fn reconstruct_names_missing_and_mismatched_images() {
 #[test]
 fn subpixel_refinement_cuts_depth_noise_on_a_wall() {
     use conformd::stereo::disparity::SgbmOptions;
-    use conformd::stereo::reconstruct::{PodReport, RectifierCache, pod_grid};
+    use conformd::stereo::reconstruct::RectifierCache;
     let rig = RigFile::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("config/rig.example.toml"))
         .unwrap();
     // a 2 x 2 m slab whose face y = -0.05 faces pod1
@@ -436,15 +436,7 @@ fn subpixel_refinement_cuts_depth_noise_on_a_wall() {
             subpixel_steps: steps,
             ..Default::default()
         };
-        let g = pod_grid(
-            rect,
-            &l.pixels,
-            &r.pixels,
-            &o,
-            None,
-            &mut PodReport::default(),
-        )
-        .unwrap();
+        let g = common::whole_pod_grid(rect, &l.pixels, &r.pixels, &o);
         let d: Vec<f64> = g
             .valid()
             .filter(|p| (p.y + 0.05).abs() < 0.05 && p.x.abs() < 0.9 && p.z.abs() < 0.9)

@@ -168,7 +168,7 @@ fn simulate_writes_standard_capture_sets() {
 /// parts still carries some texture), and at most 0.2% of them far off.
 #[test]
 fn without_the_projector_stereo_leaves_holes_not_wrong_points() {
-    use conformd::stereo::reconstruct::{PodReport, RectifierCache, pod_grid};
+    use conformd::stereo::reconstruct::RectifierCache;
     let mut rig = rig();
     let subject = templates::build(Kind::Pig, 20_000).mesh;
     let surface = conformd::conform::correspond::ScanSurface::new(&subject).unwrap();
@@ -185,15 +185,7 @@ fn without_the_projector_stereo_leaves_holes_not_wrong_points() {
             num_disparities: 64,
             ..Default::default()
         };
-        let grid = pod_grid(
-            rect,
-            &l.pixels,
-            &r.pixels,
-            &o,
-            None,
-            &mut PodReport::default(),
-        )
-        .unwrap();
+        let grid = common::whole_pod_grid(rect, &l.pixels, &r.pixels, &o);
         let d: Vec<f64> = grid
             .valid()
             .map(|p| surface.distance(&p) / subject.diagonal())
