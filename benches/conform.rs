@@ -74,7 +74,7 @@ fn bench_rigged(
         &case.template.triangles,
     );
     println!(
-        "{label:<34} {:>6} v {:>7} pts  best {:>6.3} s  median {:>6.3} s{}  | setup {:.3} global {:.3} coarse {:.3} match {:.3} rot {:.3} solve {:.3} other {:.3} | {} its, error {:.3}%",
+        "{label:<34} {:>6} v {:>7} pts  best {:>6.3} s  median {:>6.3} s{}  | setup {:.3} global {:.3} (align {:.3} limbs {:.3} rig {:.3}) coarse {:.3} match {:.3} rot {:.3} solve {:.3} other {:.3} | {} its, error {:.3}%",
         case.template.vertices.len(),
         case.scan.vertices.len(),
         times[0],
@@ -89,6 +89,9 @@ fn bench_rigged(
         )),
         s.setup,
         s.global,
+        s.align,
+        s.limbs,
+        s.rig,
         s.coarse,
         s.correspond,
         s.rotations,

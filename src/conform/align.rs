@@ -9,6 +9,7 @@ use crate::mesh::V3;
 use crate::mesh::transform::{Similarity, fit_similarity};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use nalgebra::{Matrix3, Rotation3};
+use rayon::prelude::*;
 
 /// Options of the automatic alignment.
 #[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
@@ -178,7 +179,7 @@ pub fn auto_align(
         kept = candidates.iter().collect();
     }
     let mut results: Vec<(f64, Similarity)> = kept
-        .into_iter()
+        .into_par_iter()
         .map(|&r| {
             let init = Similarity {
                 scale: scale0,
@@ -225,7 +226,7 @@ fn icp(
     for _ in 0..opts.icp_iterations.max(1) {
         let inv = t.inverse();
         let mut pairs: Vec<(f64, usize, usize)> = samples
-            .iter()
+            .par_iter()
             .enumerate()
             .map(|(i, s)| {
                 let q = inv.apply(s);
@@ -233,8 +234,12 @@ fn icp(
                 (nn.distance, i, nn.item as usize)
             })
             .collect();
-        pairs.sort_by(|a, b| a.0.total_cmp(&b.0));
-        pairs.truncate(((pairs.len() as f64) * opts.trim.clamp(0.3, 1.0)) as usize);
+        // the trimmed share: the nearest pairs, in no particular order
+        let keep = ((pairs.len() as f64) * opts.trim.clamp(0.3, 1.0)) as usize;
+        if keep > 0 && keep < pairs.len() {
+            pairs.select_nth_unstable_by(keep - 1, |a, b| a.0.total_cmp(&b.0));
+        }
+        pairs.truncate(keep);
         let src: Vec<V3> = pairs.iter().map(|p| template[p.2]).collect();
         let dst: Vec<V3> = pairs.iter().map(|p| samples[p.1]).collect();
         let next = fit_similarity(&src, &dst, None, true);

@@ -214,7 +214,9 @@ struct ProxyRig<'a> {
     rest: Vec<V3>,
     normals: Vec<V3>,
     weights: Vec<&'a [(u32, f64)]>,
-    shapes: Vec<Vec<V3>>,
+    /// per proxy, the shape fields that move it and by how much: a bone's fields touch
+    /// only its own part, and posing skips the rest
+    shapes: Vec<Vec<(usize, V3)>>,
 }
 
 impl<'a> ProxyRig<'a> {
@@ -228,12 +230,56 @@ impl<'a> ProxyRig<'a> {
                 .iter()
                 .map(|p| rig.weights[p.vertex].as_slice())
                 .collect(),
-            shapes: rig
-                .shapes
+            shapes: proxies
                 .iter()
-                .map(|s| proxies.iter().map(|p| s.vertices[p.vertex]).collect())
+                .map(|p| {
+                    rig.shapes
+                        .iter()
+                        .enumerate()
+                        .map(|(k, s)| (k, s.vertices[p.vertex]))
+                        .filter(|(_, d)| *d != V3::zeros())
+                        .collect()
+                })
                 .collect(),
         }
+    }
+
+    /// Per parameter of `params` (in its order), the proxies a change of it moves: the
+    /// placement moves all; a bone's turn those weighted on it or below it; a shape
+    /// field those it offsets and those weighted on a bone whose joint (or a parent's)
+    /// it shifts. The others' Jacobian entries are zero and are not computed.
+    fn moved_by(&self, params: &Params) -> Vec<Vec<usize>> {
+        let rig = self.rig;
+        let nb = rig.bones.len();
+        // bones that move with any of `seeds` (parents are listed first)
+        let below = |seeds: &dyn Fn(usize) -> bool| -> Vec<bool> {
+            let mut m = vec![false; nb];
+            for b in 0..nb {
+                m[b] = seeds(b) || rig.bones[b].parent.is_some_and(|p| m[p]);
+            }
+            m
+        };
+        let weighted_on =
+            |m: &[bool], i: usize| self.weights[i].iter().any(|&(b, _)| m[b as usize]);
+        let all: Vec<usize> = (0..self.rest.len()).collect();
+        let mut out = vec![all; 7];
+        for &fb in &params.free_bones {
+            let m = below(&|b| b == fb);
+            let which: Vec<usize> = (0..self.rest.len())
+                .filter(|&i| weighted_on(&m, i))
+                .collect();
+            out.extend([which.clone(), which.clone(), which]);
+        }
+        for k in 0..params.shapes {
+            let field = &rig.shapes[k];
+            let m = below(&|b| field.heads[b] != V3::zeros());
+            out.push(
+                (0..self.rest.len())
+                    .filter(|&i| weighted_on(&m, i) || self.shapes[i].iter().any(|&(j, _)| j == k))
+                    .collect(),
+            );
+        }
+        out
     }
 
     /// The bones' transforms in `st` (shape factors applied to the joints).
@@ -262,9 +308,10 @@ impl<'a> ProxyRig<'a> {
         with_normal: bool,
     ) -> (V3, V3) {
         let mut p = self.rest[i];
-        for (k, &f) in st.pose.factors.iter().enumerate() {
+        for &(k, d) in &self.shapes[i] {
+            let f = st.pose.factors[k];
             if f != 1.0 {
-                p += self.shapes[k][i] * (f - 1.0);
+                p += d * (f - 1.0);
             }
         }
         let mut q = V3::zeros();
@@ -454,6 +501,7 @@ impl Problem<'_> {
             (&self.prig, self.surface, &self.samples, &self.s, self.rig);
         let (area_w, scan_w, diag) = (&self.area_w, self.scan_w, self.diag);
         let np = params.count();
+        let moved_by = prig.moved_by(params);
         let iters = iterations.max(1);
         for it in 0..iters {
             let t = phase.0 + (phase.1 - phase.0) * it as f64 / (iters - 1).max(1) as f64;
@@ -518,8 +566,13 @@ impl Problem<'_> {
                     let mut d = vec![0.0; np];
                     d[p] = h;
                     let moved = params.apply(st, &d, &centre, rig);
-                    let (xp, _) = prig.pose(&moved, false);
-                    xp.iter().zip(&x).map(|(a, b)| (a - b) / h).collect()
+                    let xf = prig.transforms(&moved);
+                    let mut col = vec![V3::zeros(); x.len()];
+                    for &i in &moved_by[p] {
+                        let q = prig.pose_one(&moved, &xf, i, false).0;
+                        col[i] = (moved.placement.apply(&q) - x[i]) / h;
+                    }
+                    col
                 })
                 .collect();
             // every row of a proxy shares its Jacobian J (3 x np): its rows add

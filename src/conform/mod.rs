@@ -444,6 +444,11 @@ pub struct IterationReport {
 pub struct StageTimes {
     pub setup: f64,
     pub global: f64,
+    /// parts of `global` without landmarks: the rigid alignment, the limb search, the
+    /// rig's fit
+    pub align: f64,
+    pub limbs: f64,
+    pub rig: f64,
     pub coarse: f64,
     pub correspond: f64,
     pub fill: f64,
@@ -825,7 +830,7 @@ fn conform_on_pool(
     // 1. Global mapping.
     let t0 = Instant::now();
     let (hypotheses, mut global_report) =
-        global_mapping(template, rig, &surface, pairs.as_ref(), opts)?;
+        global_mapping(template, rig, &surface, pairs.as_ref(), opts, &mut times)?;
     times.global = t0.elapsed().as_secs_f64();
 
     // 2-4. The elastic fit: coarse stage, then the iterations; for each alignment
@@ -1053,6 +1058,7 @@ fn global_mapping(
     surface: &ScanSurface,
     pairs: Option<&Pairs>,
     opts: &ConformOptions,
+    times: &mut StageTimes,
 ) -> Result<(Vec<Hypothesis>, GlobalReport), ConformError> {
     Ok(match pairs {
         Some(p) => (
@@ -1063,7 +1069,7 @@ fn global_mapping(
             },
         ),
         None => {
-            let (h, rep) = automatic_hypotheses(template, rig, surface, opts);
+            let (h, rep) = automatic_hypotheses(template, rig, surface, opts, times);
             (h, GlobalReport::Automatic(rep))
         }
     })
@@ -1078,9 +1084,13 @@ fn automatic_hypotheses(
     rig: Option<&TemplateRig>,
     surface: &ScanSurface,
     opts: &ConformOptions,
+    times: &mut StageTimes,
 ) -> (Vec<Hypothesis>, align::AlignReport) {
+    let t = Instant::now();
     let samples = template.surface_samples(ALIGN_TEMPLATE_SAMPLES);
     let (sim, runner_up, mut rep) = align::auto_align(&samples, surface, &opts.align);
+    times.align = t.elapsed().as_secs_f64();
+    let t = Instant::now();
     // the paper's method has no distortion-aware springs to judge by
     let default_method = opts.method == Method::Default;
     let found = if default_method && opts.align.limbs > 0 {
@@ -1105,6 +1115,8 @@ fn automatic_hypotheses(
         h.push(placed(&r));
     }
     rep.limbs_found = found.len();
+    times.limbs = t.elapsed().as_secs_f64();
+    let t = Instant::now();
     // a template without a rig (a user's own mesh) gets one from its limbs (a station
     // finds it once, at start-up)
     let automatic;
@@ -1156,6 +1168,7 @@ fn automatic_hypotheses(
         a.limb_search_score = Some(guess_score);
         a.kept_limb_search = keep_guess;
     }
+    times.rig = t.elapsed().as_secs_f64();
     if keep_guess {
         return (vec![guess], rep);
     }
@@ -1197,7 +1210,13 @@ pub fn rig_fit_only(
     opts: &ConformOptions,
 ) -> Result<(Vec<Vec<V3>>, align::AlignReport), ConformError> {
     let surface = ScanSurface::new(scan)?;
-    let (h, rep) = automatic_hypotheses(template, Some(rig), &surface, opts);
+    let (h, rep) = automatic_hypotheses(
+        template,
+        Some(rig),
+        &surface,
+        opts,
+        &mut StageTimes::default(),
+    );
     Ok((h.into_iter().map(|x| x.x).collect(), rep))
 }
 
