@@ -526,9 +526,9 @@ impl Problem<'_> {
                     if let Some(t) = targets {
                         return Some((i, t[i], n[i], area_w[i]));
                     }
-                    let (q, d) = surface.nearest_point(&x[i]);
+                    let (q, _) = surface.nearest_point_within(&x[i], reach)?;
                     let m = surface.normal(q);
-                    if d > reach || n[i].dot(&m) < 0.5 {
+                    if n[i].dot(&m) < 0.5 {
                         return None;
                     }
                     let r = m.dot(&(x[i] - surface.points[q]));
@@ -765,7 +765,7 @@ impl<'a> ChainCost<'a> {
         let cap = CHAIN_SEARCH_CAP * problem.diag;
         let still_to_scan = still
             .par_iter()
-            .map(|&i| problem.surface.nearest_point(&x[i]).1.min(cap) * problem.area_w[i])
+            .map(|&i| problem.surface.distance_capped(&x[i], cap) * problem.area_w[i])
             .sum::<f64>();
         let still_from_scan = if still.is_empty() {
             vec![cap; problem.samples.len()]
@@ -804,7 +804,7 @@ impl<'a> ChainCost<'a> {
                 .moving
                 .iter()
                 .zip(&x)
-                .map(|(&i, q)| p.surface.nearest_point(q).1.min(self.cap) * p.area_w[i])
+                .map(|(&i, q)| p.surface.distance_capped(q, self.cap) * p.area_w[i])
                 .sum::<f64>();
         let arr: Vec<[f64; 3]> = x.iter().map(|q| [q.x, q.y, q.z]).collect();
         let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&arr);

@@ -6,7 +6,7 @@
 
 use super::correspond::{MatchLimits, ScanSurface};
 use crate::mesh::{V3, vertex_normals};
-use nalgebra::{DMatrix, Matrix3, UnitQuaternion};
+use nalgebra::{Matrix3, UnitQuaternion};
 use rayon::prelude::*;
 use std::cmp::Reverse;
 use std::collections::BinaryHeap;
@@ -212,6 +212,7 @@ pub fn run(
     }
     fit_node_rotations(graph, &mut def);
     let mut x = graph.apply(&def, rest);
+    let mut system = NodeSystem::new(graph);
     for it in 0..s.iterations {
         let f = if s.iterations > 1 {
             it as f64 / (s.iterations - 1) as f64
@@ -270,12 +271,12 @@ pub fn run(
         // node positions, x_v = sum_k w_vk p_k + c_v(R), so the system matrix does not
         // depend on the rotations: one factorisation serves every local-global round.
         let per_node = sampled as f64 / nn as f64;
-        let mut a = DMatrix::<f64>::zeros(nn, nn);
+        system.clear();
         for &(v, weight, _) in &terms {
             let bl = &graph.blend[v];
             for &(i, wi) in bl {
                 for &(j, wj) in bl {
-                    a[(i as usize, j as usize)] += weight * wi * wj;
+                    system.add(i as usize, j as usize, weight * wi * wj);
                 }
             }
         }
@@ -285,15 +286,15 @@ pub fn run(
         for i in 0..nn {
             for &j in &graph.edges[i] {
                 let (j, w) = (j as usize, spring(i));
-                a[(i, i)] += w;
-                a[(j, j)] += w;
-                a[(i, j)] -= w;
-                a[(j, i)] -= w;
+                system.add(i, i, w);
+                system.add(j, j, w);
+                system.add(i, j, -w);
+                system.add(j, i, -w);
             }
             // keep the system definite where a node has no data at all
-            a[(i, i)] += 1e-6 * per_node;
+            system.add(i, i, 1e-6 * per_node);
         }
-        let Some(ch) = a.cholesky() else {
+        let Some(ch) = system.factor() else {
             continue;
         };
         // one local-global round per matching: more rounds on the same matches were
@@ -304,7 +305,8 @@ pub fn run(
                 .iter()
                 .map(|q| *q.to_rotation_matrix().matrix())
                 .collect();
-            let mut b = DMatrix::<f64>::zeros(nn, 3);
+            // one right-hand side per coordinate
+            let mut b = [vec![0.0; nn], vec![0.0; nn], vec![0.0; nn]];
             for &(v, weight, target) in &terms {
                 let bl = &graph.blend[v];
                 let c: V3 = bl
@@ -313,7 +315,7 @@ pub fn run(
                     .sum();
                 for &(i, wi) in bl {
                     for d in 0..3 {
-                        b[(i as usize, d)] += weight * wi * (target[d] - c[d]);
+                        b[d][i as usize] += weight * wi * (target[d] - c[d]);
                     }
                 }
             }
@@ -322,17 +324,17 @@ pub fn run(
                     let (j, w) = (j as usize, spring(i));
                     let e = (rm[i] + rm[j]) * (graph.rest[i] - graph.rest[j]) * 0.5;
                     for d in 0..3 {
-                        b[(i, d)] += w * e[d];
-                        b[(j, d)] -= w * e[d];
+                        b[d][i] += w * e[d];
+                        b[d][j] -= w * e[d];
                     }
                 }
-                for d in 0..3 {
-                    b[(i, d)] += 1e-6 * per_node * def.pos[i][d];
+                for (bd, p) in b.iter_mut().zip(def.pos[i].iter()) {
+                    bd[i] += 1e-6 * per_node * p;
                 }
             }
-            let sol = ch.solve(&b);
-            for k in 0..nn {
-                def.pos[k] = V3::new(sol[(k, 0)], sol[(k, 1)], sol[(k, 2)]);
+            let sol = b.map(|rhs| ch.solve(&rhs));
+            for (k, p) in def.pos.iter_mut().enumerate() {
+                *p = V3::new(sol[0][k], sol[1][k], sol[2][k]);
             }
             fit_node_rotations(graph, &mut def);
         }
@@ -353,6 +355,77 @@ pub fn run(
         })
         .collect();
     (x, rm)
+}
+
+/// The coarse stage's normal equations over the nodes: sparse (a node couples only with
+/// its graph neighbours and the nodes it shares a vertex with), their pattern fixed for
+/// the whole stage, so the fill-reducing order and the symbolic factorisation are found
+/// once and every matching refactors the values only.
+struct NodeSystem {
+    matrix: sprs::CsMat<f64>,
+    factor: Option<sprs_ldl::LdlNumeric<f64, usize>>,
+}
+
+impl NodeSystem {
+    fn new(graph: &Graph) -> Self {
+        let nn = graph.rest.len();
+        let mut pattern: Vec<std::collections::BTreeSet<usize>> = (0..nn)
+            .map(|i| std::collections::BTreeSet::from([i]))
+            .collect();
+        for (i, e) in graph.edges.iter().enumerate() {
+            for &j in e {
+                pattern[i].insert(j as usize);
+                pattern[j as usize].insert(i);
+            }
+        }
+        for bl in &graph.blend {
+            for &(i, _) in bl {
+                for &(j, _) in bl {
+                    pattern[i as usize].insert(j as usize);
+                }
+            }
+        }
+        let mut indptr = vec![0];
+        let mut indices = Vec::new();
+        for row in &pattern {
+            indices.extend(row.iter().copied());
+            indptr.push(indices.len());
+        }
+        let data = vec![0.0; indices.len()];
+        NodeSystem {
+            matrix: sprs::CsMat::new((nn, nn), indptr, indices, data),
+            factor: None,
+        }
+    }
+
+    fn clear(&mut self) {
+        self.matrix.data_mut().iter_mut().for_each(|x| *x = 0.0);
+    }
+
+    /// Adds `w` at (`i`, `j`), which the pattern holds.
+    fn add(&mut self, i: usize, j: usize, w: f64) {
+        if let Some(x) = self.matrix.get_mut(i, j) {
+            *x += w;
+        }
+    }
+
+    /// The factorisation of the values added since [`NodeSystem::clear`], or `None`
+    /// when it fails.
+    fn factor(&mut self) -> Option<&sprs_ldl::LdlNumeric<f64, usize>> {
+        let ok = match &mut self.factor {
+            Some(f) => f.update(self.matrix.view()).is_ok(),
+            None => {
+                self.factor = sprs_ldl::Ldl::new()
+                    .check_symmetry(sprs::SymmetryCheck::DontCheckSymmetry)
+                    .numeric(self.matrix.view())
+                    .ok();
+                self.factor.is_some()
+            }
+        };
+        let f = self.factor.as_ref().filter(|_| ok)?;
+        // a zero or negative pivot: the system is not definite
+        f.d().iter().all(|&d| d > 0.0).then_some(f)
+    }
 }
 
 /// Local step on the graph: each node's rotation best maps its rest edges to the current

@@ -311,6 +311,22 @@ impl ScanSurface {
         (r.item as usize, r.distance.sqrt())
     }
 
+    /// The nearest scan point (index, distance) if one lies within `r`: a bounded
+    /// query, which a far point answers sooner.
+    pub fn nearest_point_within(&self, x: &V3, r: f64) -> Option<(usize, f64)> {
+        const ONE: std::num::NonZero<usize> = std::num::NonZero::new(1).unwrap();
+        self.tree
+            .nearest_n_within::<SquaredEuclidean>(&[x.x, x.y, x.z], r * r, ONE, false)
+            .first()
+            .map(|nb| (nb.item as usize, nb.distance.sqrt()))
+    }
+
+    /// The nearest scan point's distance, or `cap` when none lies nearer.
+    pub fn distance_capped(&self, x: &V3, cap: f64) -> f64 {
+        self.nearest_point_within(x, cap)
+            .map_or(cap, |(_, d)| d.min(cap))
+    }
+
     /// The most similar scan point for a template vertex at `x` with unit normal `n`, or
     /// `None` (missing data). `w` falls with the normal disagreement and the distance.
     pub fn query(&self, x: &V3, n: &V3, lim: &MatchLimits) -> Option<Match> {
