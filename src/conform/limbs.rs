@@ -241,7 +241,24 @@ pub fn search(
                     pts.push([p.x, p.y, p.z]);
                 }
                 let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&pts);
-                let still_open = open.iter().filter(|p| !within(&tree, p, tau)).count();
+                // a sample farther than `tau` from the probes' box stays open: no query
+                let (lo, hi) = pts.iter().fold(
+                    (V3::repeat(f64::INFINITY), V3::repeat(f64::NEG_INFINITY)),
+                    |(lo, hi), q| (lo.inf(&V3::from(*q)), hi.sup(&V3::from(*q))),
+                );
+                let (lo, hi) = (lo - V3::repeat(tau), hi + V3::repeat(tau));
+                let still_open = open
+                    .iter()
+                    .filter(|p| {
+                        let inside = p.x >= lo.x
+                            && p.y >= lo.y
+                            && p.z >= lo.z
+                            && p.x <= hi.x
+                            && p.y <= hi.y
+                            && p.z <= hi.z;
+                        !inside || !within(&tree, p, tau)
+                    })
+                    .count();
                 still_open as f64 + off * per_area
             };
             let here = score(&None);
