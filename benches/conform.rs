@@ -3,7 +3,8 @@
 //! with template and scan size. Run: `cargo bench --bench conform` (or `make bench`);
 //! `-- --quick` runs the 11k and outside-mesh cases only; `-- --peer` also runs trimesh's
 //! Sumner non-rigid ICP (`benches/peer/trimesh_sumner.py`, needs python3 with trimesh,
-//! scipy, rtree) on the 11k case in the same run and prints the speed ratio.
+//! scipy, rtree) on the 11k case in the same run and prints the speed ratio;
+//! `-- --only TEXT` runs the cases whose label holds TEXT (e.g. `rig`, for a profiler).
 
 use conformd::conform::{ConformOptions, Conformed, conform, conform_rigged};
 use conformd::synth::cases::{self, ArticulatedSpec, Case};
@@ -56,6 +57,12 @@ fn bench_rigged(
     repeats: usize,
     target: Option<f64>,
 ) -> f64 {
+    let args: Vec<String> = std::env::args().collect();
+    if let Some(i) = args.iter().position(|a| a == "--only")
+        && !label.contains(args[i + 1].as_str())
+    {
+        return f64::NAN;
+    }
     let mut times = Vec::new();
     let mut last = None;
     for _ in 0..repeats {
