@@ -394,7 +394,7 @@ async fn serve(
         }
     }));
 
-    let (hint_tx, mut hints) = tokio::sync::mpsc::channel::<()>(16);
+    let (hint_tx, mut hints) = tokio::sync::mpsc::channel::<Hint>(16);
     let _watcher = if shared.cfg.daemon.watch {
         watch(&shared, hint_tx)
     } else {
@@ -441,9 +441,13 @@ async fn serve(
             _ = term.recv() => break,
             _ = int.recv() => break,
             _ = shared.wake.notified() => scan(&shared),
-            Some(()) = hints.recv() => {
-                // a burst of sets is a burst of events: gather them, scan once
-                tokio::time::sleep(Duration::from_millis(150)).await;
+            Some(hint) = hints.recv() => {
+                // a set renamed in is whole: scanned at once. Files being written are a
+                // burst of events: gathered, scanned once
+                if hint == Hint::Changed {
+                    let until = tokio::time::Instant::now() + Duration::from_millis(150);
+                    while let Ok(Some(Hint::Changed)) = tokio::time::timeout_at(until, hints.recv()).await {}
+                }
                 while hints.try_recv().is_ok() {}
                 scan(&shared);
             }
@@ -636,18 +640,37 @@ fn complete_result(dir: &Path) -> Option<(serde_json::Value, f64)> {
 /// daemon says so and relies on the periodic rescans.
 fn watch(
     shared: &Shared,
-    hints: tokio::sync::mpsc::Sender<()>,
+    hints: tokio::sync::mpsc::Sender<Hint>,
 ) -> Option<notify::RecommendedWatcher> {
     use notify::Watcher;
     use notify::event::{EventKind, ModifyKind, RenameMode};
-    let (moved_in, incoming) = (shared.moved_in.clone(), shared.incoming_dir());
+    let (moved_in, incoming, captures) = (
+        shared.moved_in.clone(),
+        shared.incoming_dir(),
+        shared.captures_dir(),
+    );
     let handler = move |e: notify::Result<notify::Event>| {
+        // a worker reading a capture changes nothing
         if let Ok(e) = &e
-            && matches!(
-                e.kind,
-                EventKind::Modify(ModifyKind::Name(RenameMode::To | RenameMode::Both))
-            )
-            && let Some(to) = e.paths.last()
+            && matches!(e.kind, EventKind::Access(_))
+        {
+            return;
+        }
+        let renamed_in = match &e {
+            Ok(e)
+                if matches!(
+                    e.kind,
+                    EventKind::Modify(ModifyKind::Name(RenameMode::To | RenameMode::Both))
+                ) =>
+            {
+                e.paths.last().filter(|to| {
+                    to.parent() == Some(incoming.as_path())
+                        || to.parent() == Some(captures.as_path())
+                })
+            }
+            _ => None,
+        };
+        if let Some(to) = renamed_in
             && to.parent() == Some(incoming.as_path())
             && let Some(name) = to.file_name()
         {
@@ -658,7 +681,12 @@ fn watch(
             }
             m.insert(name.to_string_lossy().into_owned());
         }
-        let _ = hints.try_send(());
+        let hint = if renamed_in.is_some() {
+            Hint::RenamedIn
+        } else {
+            Hint::Changed
+        };
+        let _ = hints.try_send(hint);
     };
     let mut w = match notify::recommended_watcher(handler) {
         Ok(w) => w,
@@ -674,6 +702,16 @@ fn watch(
         }
     }
     Some(w)
+}
+
+/// What the folder watcher saw.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Hint {
+    /// a folder renamed into `incoming/` or `captures/`: a set that came whole, scanned
+    /// at once
+    RenamedIn,
+    /// anything else (files written): scanned once the burst is over
+    Changed,
 }
 
 /// At most this many names of folders renamed into `incoming/` are remembered.
