@@ -70,7 +70,7 @@ verify-unit:
 
 # On a station with cameras: the test that needs a real V4L2 device (ignored by `test`).
 test-hardware: deps
-	$(CARGO) test --locked --profile ci --features test-hooks --test v4l2_hardware -- --ignored
+	$(CARGO) test --locked --profile ci --features test-hooks --test all v4l2_hardware:: -- --ignored
 
 demo: deps
 	$(CARGO) run --locked --release -- demo --out $(DEMO_OUT)

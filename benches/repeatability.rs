@@ -1,18 +1,20 @@
 //! Repeatability of measurements over postures (issue 22, `synth::repeat`): each subject
-//! scanned in several postures, the generic template conformed onto every scan with its
-//! landmarks and without (the up axis known, as a station's config says), then measured
-//! raw and posture-free. Per subject and measurement: the mean and the coefficient of
-//! variation over the postures (CV, %), raw, by the template's skeleton undone (the old
-//! `--normalise-posture`) and by the subject's own posture (the default). Run:
-//! `cargo bench --bench repeatability` (`-- --postures N`, `-- --only NAME,...`,
-//! `-- --part dev|val|all`, `-- --front` to give the heading too).
+//! scanned in several postures, the generic template (with its rig, as a station fits
+//! it) conformed onto every scan with its landmarks and without (the up axis known, as
+//! a station's config says), then measured raw and posture-free. Per subject and
+//! measurement: the mean and the coefficient of variation over the postures (CV, %),
+//! raw, by the template's skeleton undone (the old `--normalise-posture`), by the
+//! subject's own parts (the default), and measured on the result with its parts'
+//! turns taken out (`unposed`). Run: `cargo bench --bench repeatability` (`-- --postures N`,
+//! `-- --only NAME,...`, `-- --part dev|val|all`, `-- --front` to give the heading too).
 
-use conformd::conform::{ConformOptions, conform};
+use conformd::conform::{ConformOptions, conform_rigged};
 use conformd::measure::{self, Definitions, Measurement, PostureRemoval};
 use conformd::mesh::V3;
 use conformd::synth::devset::Part;
 use conformd::synth::repeat;
 use conformd::template::Kind;
+use conformd::template::rig::TemplateRig;
 use std::time::Instant;
 
 fn main() {
@@ -54,6 +56,9 @@ fn main() {
                 ("parts", PostureRemoval::for_figure(&s.template, &resolved)),
             ];
             let art = measure::posture::Articulation::from_figure(&s.template, V3::z());
+            // the generic template's own rig, as a station fits it
+            let rig = TemplateRig::generic(&s.template, s.kind);
+            let never = std::sync::atomic::AtomicBool::new(false);
             for with_landmarks in [true, false] {
                 let mut unposed: Vec<Vec<Measurement>> = Vec::new();
                 let mut raw: Vec<Vec<Measurement>> = Vec::new();
@@ -72,8 +77,16 @@ fn main() {
                     let lm =
                         with_landmarks.then(|| (&p.template_landmarks[..], &p.scan_landmarks[..]));
                     let t = Instant::now();
-                    let r =
-                        conform(&s.template.mesh, &p.scan, lm, &o, &mut |_| {}).expect("conforms");
+                    let r = conform_rigged(
+                        &s.template.mesh,
+                        Some(&rig),
+                        &p.scan,
+                        lm,
+                        &o,
+                        &mut |_| {},
+                        &never,
+                    )
+                    .expect("conforms");
                     seconds += t.elapsed().as_secs_f64();
                     raw.push(resolved.measure(&r.mesh).expect("measures"));
                     let fit = art.fit(&r.mesh).expect("parts fit");

@@ -4,7 +4,7 @@
 //!
 //! Heavy: run it optimised, as `make test` does (`--profile ci`).
 
-mod common;
+use crate::common;
 
 use conformd::conform::ConformOptions;
 use conformd::synth::cases::{self, ArticulatedSpec, correspondence_error};

@@ -4,7 +4,7 @@
 //! row leave exactly 100 sets. Cameras on simulated V4L2 drivers (triggered and
 //! free-running) show that arming starts streaming and that no frame from before the
 //! trigger is taken.
-mod common;
+use crate::common;
 use common::{CHILD_LIMIT, Deadline};
 
 use conformd::rig::camera::{Camera, CameraInfo, CameraSettings, PixelFormat};

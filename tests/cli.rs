@@ -1,7 +1,7 @@
 //! The `conformd` binary end to end on files: conform with landmarks and without, the
 //! report's per-iteration figures, `info`, and the one-line error a bad file gets.
 
-mod common;
+use crate::common;
 use common::{CHILD_LIMIT, Deadline};
 
 use conformd::mesh::io::{PlyEncoding, obj_bytes, ply_bytes};

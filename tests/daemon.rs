@@ -3,7 +3,7 @@
 //! without inotify), SIGKILL and restart, SIGTERM during work, corrupt sets and a crashing
 //! worker, and the API's refusals. Results, journal and API must agree; every capture is
 //! processed exactly once.
-mod common;
+use crate::common;
 use common::{CHILD_LIMIT, Deadline};
 
 use conformd::daemon::journal::{self, Journal, State};

@@ -1,7 +1,7 @@
 //! Hostile and careless input (the hostile-input issue's cases fixed so far): each gets
 //! one clear sentence and a failing exit, never a panic, a hang, or a "success" with
 //! garbage; a failed command leaves no output behind.
-mod common;
+use crate::common;
 use common::{CHILD_LIMIT, Deadline};
 
 use conformd::conform::{ConformOptions, conform};

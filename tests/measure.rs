@@ -3,7 +3,7 @@
 //! normalisation over 12 postures.
 //!
 //! Heavy (12 conformations): run it optimised, as `make test` does (`--profile ci`).
-mod common;
+use crate::common;
 use common::{CHILD_LIMIT, Deadline};
 
 use conformd::conform::{ConformOptions, conform};

@@ -1,7 +1,7 @@
 //! The paper's synthetic cases (Ju et al. 2004, sections 3.1 and 3.2): a sphere onto a
 //! cube with 8 corner landmarks, and a sphere onto a box with missing data.
 
-mod common;
+use crate::common;
 
 use conformd::conform::{ConformOptions, Method};
 use conformd::mesh::{V3, topology};

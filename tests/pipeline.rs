@@ -2,7 +2,7 @@
 //! then `conform` give; results appear whole or not at all, even when the process is
 //! killed; bad capture sets fail with the right stage, permanence and file; a station
 //! file's mistakes are all reported with their lines.
-mod common;
+use crate::common;
 use common::{CHILD_LIMIT, Deadline};
 
 use conformd::jobs;

@@ -1,7 +1,7 @@
 //! Previews: a rendered conformed mesh shows an object of plausible size, shaded (not a
 //! flat silhouette), in the colours asked for; the CLI writes a PNG that decodes.
 
-mod common;
+use crate::common;
 use common::{CHILD_LIMIT, Deadline};
 
 use conformd::render::{Colouring, RenderOptions, View, colour_map, render};

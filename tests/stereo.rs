@@ -1,7 +1,7 @@
 //! Stereo reconstruction on simulated captures: a two-pod capture of a
 //! pig reconstructs a scan close to the true surface that covers what the cameras see;
 //! conformed with the template, it gives dense correspondence against the ground truth.
-mod common;
+use crate::common;
 use common::{CHILD_LIMIT, Deadline};
 
 use conformd::conform::correspond::ScanSurface;

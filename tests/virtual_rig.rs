@@ -1,7 +1,7 @@
 //! The virtual rig renders what stereo needs: a speckled subject whose every surface
 //! point looks the same in both cameras of a pod, at the place the calibration predicts
 //! (lens distortion included); and `conformd simulate` writes standard capture sets.
-mod common;
+use crate::common;
 use common::{CHILD_LIMIT, Deadline};
 
 use conformd::stereo::rig::RigFile;

@@ -4,7 +4,7 @@
 //! a stand-in program that imitates `conformd process --json --stage` (a staged result
 //! and its JSON line) in a fifth of a second: what is tested is the queue.
 
-mod common;
+use crate::common;
 
 use conformd::daemon::journal::{self, State, cluster::TempPostgres};
 use std::os::unix::process::CommandExt;
