@@ -465,28 +465,15 @@ fn a_weight_that_depends_on_several_measurements_is_predicted_by_them_together()
 
 #[test]
 fn weights_are_recovered_from_measurements_with_cross_validated_error_under_4_percent() {
-    use rand::{Rng, SeedableRng};
+    use rand::SeedableRng;
     use rand_distr::{Distribution, Normal};
-    let fig = template::build(Kind::Pig, 3000);
-    let lms = fig.landmarks();
-    let resolved = Definitions::parse(conformd::measure::PIG, "pig")
-        .unwrap()
-        .resolve(&fig.mesh, &lms)
-        .unwrap();
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
     let noise = Normal::new(0.0, 0.03).unwrap();
     let dir = tempfile::tempdir().unwrap();
     let results = dir.path().join("results");
     let mut weights = String::from("id,kg\n");
     let mut samples = Vec::new();
-    for i in 0..40 {
-        let shape: BTreeMap<String, f64> = ["length", "girth", "leg_length", "head_size"]
-            .iter()
-            .map(|k| (k.to_string(), rng.random_range(0.85..1.15)))
-            .collect();
-        let pose = &template::random_postures(Kind::Pig, 1, 8.0, i)[0];
-        let subject = template::subject(&fig, Kind::Pig, &shape, pose).unwrap();
-        let ms = resolved.measure(&subject).unwrap();
+    for (i, (_, ms)) in measured_pigs(40, 11).into_iter().enumerate() {
         // water-dense animals: volume x 1000 kg/m^3, a 3% scale error
         let kg = value(&ms, "volume") * 1000.0 * (1.0 + noise.sample(&mut rng));
         samples.push((format!("s{i}"), ms.clone(), kg));

@@ -804,7 +804,7 @@ fn a_station_with_its_own_template_mesh_finds_its_rig_once_at_start_up() {
 /// truth's own.
 #[test]
 fn process_lands_near_the_truth_it_was_rendered_from() {
-    use conformd::mesh::{LandmarkPos, Mesh, V3};
+    use conformd::mesh::{Mesh, V3};
     use conformd::template::{self, Kind};
     let dir = tempfile::tempdir().unwrap();
     let (_, set) = simulated();
@@ -835,24 +835,17 @@ fn process_lands_near_the_truth_it_was_rendered_from() {
     let result_off = mean_to_truth(&result);
     // the same landmark names on the truth's template (20,000 vertices) and the
     // station's (3,000)
-    let on = |fig: &template::figure::Figure| -> Vec<(String, u32)> {
-        fig.landmarks()
-            .into_iter()
-            .filter_map(|l| match l.pos {
-                LandmarkPos::Vertex(v) => Some((l.name, v)),
-                LandmarkPos::Point(_) => None,
-            })
-            .collect()
-    };
     let (fine, station) = (
         template::build(Kind::Pig, 20_000),
         template::build(Kind::Pig, 3000),
     );
-    let truth_marks: std::collections::BTreeMap<String, V3> = on(&fine)
+    let truth_marks: std::collections::BTreeMap<String, V3> = fine
+        .landmark_vertices()
         .into_iter()
         .map(|(n, v)| (n, truth.vertices[v as usize]))
         .collect();
-    let errors: Vec<(String, f64)> = on(&station)
+    let errors: Vec<(String, f64)> = station
+        .landmark_vertices()
         .into_iter()
         .filter_map(|(n, v)| {
             let t = truth_marks.get(&n)?;

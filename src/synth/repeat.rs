@@ -34,17 +34,6 @@ pub struct Subject {
     pub postures: Vec<Posture>,
 }
 
-/// The template's landmark vertices by name.
-fn named_vertices(fig: &Figure) -> BTreeMap<String, u32> {
-    fig.landmarks()
-        .into_iter()
-        .filter_map(|l| match l.pos {
-            LandmarkPos::Vertex(v) => Some((l.name, v)),
-            LandmarkPos::Point(_) => None,
-        })
-        .collect()
-}
-
 /// Landmark pairs: `marks` (name, subject vertex) that the template also has.
 fn landmark_pairs(
     template: &BTreeMap<String, u32>,
@@ -97,7 +86,7 @@ pub fn subjects(part: Part, count: usize, names: &[&str]) -> Result<Vec<Subject>
             continue;
         }
         let fig = template::build(kind, 10_000);
-        let named = named_vertices(&fig);
+        let named = fig.landmark_vertices();
         let seed = 500 + 100 * k as u64 + if part == Part::Validation { 50 } else { 0 };
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let mut postures = Vec::new();
@@ -122,7 +111,7 @@ pub fn subjects(part: Part, count: usize, names: &[&str]) -> Result<Vec<Subject>
             .iter()
             .map(|(n, f)| (n.to_string(), *f))
             .collect();
-            let marks: Vec<(String, u32)> = named_vertices(&other).into_iter().collect();
+            let marks: Vec<(String, u32)> = other.landmark_vertices().into_iter().collect();
             for (i, pose) in template::random_postures(kind, count, 20.0, seed)
                 .iter()
                 .enumerate()

@@ -191,14 +191,7 @@ pub fn generic_cases_turned(
             continue;
         }
         let fig = template::build(kind, 10_000);
-        let named: Vec<(String, u32)> = fig
-            .landmarks()
-            .into_iter()
-            .filter_map(|l| match l.pos {
-                LandmarkPos::Vertex(v) => Some((l.name, v)),
-                LandmarkPos::Point(_) => None,
-            })
-            .collect();
+        let named = fig.landmark_vertices();
         let subject = devset::load(subject_name)?;
         let marks = marks_of(subject_name)?;
         let rest_front = rest_front(&subject, &marks)
@@ -229,9 +222,8 @@ pub fn generic_cases_turned(
                 .iter()
                 .map(|(name, v)| {
                     let vertex = named
-                        .iter()
-                        .find(|(n, _)| n == name)
-                        .map(|(_, t)| *t)
+                        .get(name)
+                        .copied()
                         .ok_or_else(|| format!("the generic template has no landmark '{name}'"))?;
                     let truth = *truth.get(*v as usize).ok_or_else(|| {
                         format!("{subject_name}: mark {name} on vertex {v}, past the mesh")

@@ -642,6 +642,17 @@ impl Figure {
             .collect()
     }
 
+    /// [`Figure::landmarks`] as name -> vertex.
+    pub fn landmark_vertices(&self) -> BTreeMap<String, u32> {
+        self.landmarks()
+            .into_iter()
+            .filter_map(|l| match l.pos {
+                LandmarkPos::Vertex(v) => Some((l.name, v)),
+                LandmarkPos::Point(_) => None,
+            })
+            .collect()
+    }
+
     /// The skeleton's landmarks snapped to their nearest vertices.
     pub fn landmarks(&self) -> Vec<Landmark> {
         self.skeleton
