@@ -643,16 +643,17 @@ fn watch(
     hints: tokio::sync::mpsc::Sender<Hint>,
 ) -> Option<notify::RecommendedWatcher> {
     use notify::Watcher;
-    use notify::event::{EventKind, ModifyKind, RenameMode};
+    use notify::event::{AccessKind, AccessMode, EventKind, ModifyKind, RenameMode};
     let (moved_in, incoming, captures) = (
         shared.moved_in.clone(),
         shared.incoming_dir(),
         shared.captures_dir(),
     );
     let handler = move |e: notify::Result<notify::Event>| {
-        // a worker reading a capture changes nothing
+        // a worker reading a capture changes nothing (a file closed after writing does)
         if let Ok(e) = &e
-            && matches!(e.kind, EventKind::Access(_))
+            && let EventKind::Access(a) = e.kind
+            && a != AccessKind::Close(AccessMode::Write)
         {
             return;
         }
