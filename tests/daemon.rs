@@ -4,7 +4,7 @@
 //! worker, and the API's refusals. Results, journal and API must agree; every capture is
 //! processed exactly once.
 use crate::common;
-use common::{CHILD_LIMIT, Deadline};
+use common::{CHILD_LIMIT, Deadline, free_port};
 
 use conformd::daemon::journal::{self, Journal, State};
 use std::path::{Path, PathBuf};
@@ -55,14 +55,6 @@ fn simulated() -> &'static (tempfile::TempDir, Vec<PathBuf>) {
         }
         (dir, sets)
     })
-}
-
-fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
 }
 
 /// A station in `dir`: data under `dir/data`, the small rig, a 1,500-vertex pig; its

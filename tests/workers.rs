@@ -5,6 +5,7 @@
 //! and its JSON line) in a fifth of a second: what is tested is the queue.
 
 use crate::common;
+use common::free_port;
 
 use conformd::daemon::journal::{self, State, cluster::TempPostgres};
 use std::os::unix::process::CommandExt;
@@ -311,15 +312,6 @@ fn drop_fake_set(incoming: &Path, id: &str) {
     )
     .unwrap();
     std::fs::rename(&tmp, incoming.join(id)).unwrap();
-}
-
-/// A port on 127.0.0.1 nothing listens on now.
-fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
 }
 
 fn status(port: u16) -> Option<serde_json::Value> {

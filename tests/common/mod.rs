@@ -32,3 +32,12 @@ pub fn whole_pod_grid(
     )
     .expect("the pod's pair matches")
 }
+
+/// A port on 127.0.0.1 nothing listens on now.
+pub fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
