@@ -810,10 +810,8 @@ impl<'a> ChainCost<'a> {
         let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&arr);
         // a sample farther from the chain's bounding box than from the still proxies
         // keeps its distance: no query
-        let (lo, hi) = x.iter().fold(
-            (V3::repeat(f64::INFINITY), V3::repeat(f64::NEG_INFINITY)),
-            |(lo, hi), q| (lo.inf(q), hi.sup(q)),
-        );
+        let (lo, hi) = crate::mesh::bounds(x.iter().copied())
+            .unwrap_or((V3::repeat(f64::INFINITY), V3::repeat(f64::NEG_INFINITY)));
         let from_scan: f64 = p
             .samples
             .iter()

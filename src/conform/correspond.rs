@@ -84,6 +84,19 @@ const CLOUD_K: usize = 8;
 
 pub use crate::mesh::MAX_COORDINATE;
 
+/// The point of `tree` nearest `p` and its distance, if one lies within `r` (a bounded
+/// query: a far point costs no more than a near one).
+pub(crate) fn nearest_within(
+    tree: &ImmutableKdTree<f64, 3>,
+    p: &V3,
+    r: f64,
+) -> Option<(usize, f64)> {
+    const ONE: std::num::NonZero<usize> = std::num::NonZero::new(1).unwrap();
+    tree.nearest_n_within::<SquaredEuclidean>(&[p.x, p.y, p.z], r * r, ONE, false)
+        .first()
+        .map(|nb| (nb.item as usize, nb.distance.sqrt()))
+}
+
 /// A point set fit for geometry: coordinates within [`MAX_COORDINATE`], and an extent
 /// (not all points in one place). `what` names it in the sentence.
 pub fn check_extent(m: &Mesh, what: &str) -> Result<(), String> {
@@ -314,11 +327,7 @@ impl ScanSurface {
     /// The nearest scan point (index, distance) if one lies within `r`: a bounded
     /// query, which a far point answers sooner.
     pub fn nearest_point_within(&self, x: &V3, r: f64) -> Option<(usize, f64)> {
-        const ONE: std::num::NonZero<usize> = std::num::NonZero::new(1).unwrap();
-        self.tree
-            .nearest_n_within::<SquaredEuclidean>(&[x.x, x.y, x.z], r * r, ONE, false)
-            .first()
-            .map(|nb| (nb.item as usize, nb.distance.sqrt()))
+        nearest_within(&self.tree, x, r)
     }
 
     /// The nearest scan point's distance, or `cap` when none lies nearer.

@@ -4,9 +4,9 @@
 //! template's rest pose lying on its neighbour (a leg on the other leg), where
 //! closest-point matching keeps it; the search turns it to the scan data nothing covers.
 
-use super::correspond::ScanSurface;
+use super::correspond::{ScanSurface, nearest_within};
 use crate::mesh::{V3, topology, vertex_areas, vertex_normals};
-use kiddo::{ImmutableKdTree, SquaredEuclidean};
+use kiddo::ImmutableKdTree;
 use nalgebra::{Rotation3, Unit};
 use rayon::prelude::*;
 
@@ -242,10 +242,8 @@ pub fn search(
                 }
                 let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&pts);
                 // a sample farther than `tau` from the probes' box stays open: no query
-                let (lo, hi) = pts.iter().fold(
-                    (V3::repeat(f64::INFINITY), V3::repeat(f64::NEG_INFINITY)),
-                    |(lo, hi), q| (lo.inf(&V3::from(*q)), hi.sup(&V3::from(*q))),
-                );
+                let (lo, hi) = crate::mesh::bounds(pts.iter().map(|q| V3::from(*q)))
+                    .unwrap_or((V3::zeros(), V3::zeros()));
                 let (lo, hi) = (lo - V3::repeat(tau), hi + V3::repeat(tau));
                 let still_open = open
                     .iter()
@@ -304,19 +302,9 @@ pub fn search(
     turns
 }
 
-/// The point of `tree` nearest `p` and its distance, if one lies within `r` (a bounded
-/// query: a far point costs no more than a near one).
-fn nearest_within(tree: &ImmutableKdTree<f64, 3>, p: &V3, r: f64) -> Option<(usize, f64)> {
-    tree.nearest_n_within::<SquaredEuclidean>(&[p.x, p.y, p.z], r * r, ONE, false)
-        .first()
-        .map(|nb| (nb.item as usize, nb.distance.sqrt()))
-}
-
 fn within(tree: &ImmutableKdTree<f64, 3>, p: &V3, r: f64) -> bool {
     nearest_within(tree, p, r).is_some()
 }
-
-const ONE: std::num::NonZero<usize> = std::num::NonZero::new(1).unwrap();
 
 /// `count` unit directions spread over the sphere (a Fibonacci lattice).
 pub(crate) fn sphere_directions(count: usize) -> Vec<V3> {

@@ -33,6 +33,13 @@ pub struct Mesh {
     pub groups: BTreeMap<String, Vec<u32>>,
 }
 
+/// Axis-aligned bounding box `(min, max)` of `points`; `None` when there are none.
+pub fn bounds(points: impl IntoIterator<Item = V3>) -> Option<(V3, V3)> {
+    let mut it = points.into_iter();
+    let first = it.next()?;
+    Some(it.fold((first, first), |(lo, hi), v| (lo.inf(&v), hi.sup(&v))))
+}
+
 impl Mesh {
     pub fn new(vertices: Vec<V3>, triangles: Vec<[u32; 3]>) -> Self {
         Mesh {
@@ -54,12 +61,7 @@ impl Mesh {
 
     /// Axis-aligned bounding box `(min, max)`; `None` for an empty mesh.
     pub fn bounding_box(&self) -> Option<(V3, V3)> {
-        let first = *self.vertices.first()?;
-        Some(
-            self.vertices
-                .iter()
-                .fold((first, first), |(lo, hi), v| (lo.inf(v), hi.sup(v))),
-        )
+        bounds(self.vertices.iter().copied())
     }
 
     /// Length of the bounding-box diagonal (0 for an empty mesh). Conformation tolerances
