@@ -1,7 +1,7 @@
-//! Stereo speed (issue 4's targets): one pod pair of 1280x960 images, rectify, disparity
-//! and reproject, with conformd's own share (everything but the OpenCV calls); and a 4-pod
-//! capture to a fused scan or a mesh; first captures (rectification maps built) apart from
-//! later ones (maps cached). The captures are rendered by the virtual rig. Run:
+//! Stereo speed: one pod pair of 1280x960 images, rectify, disparity and reproject, with
+//! conformd's own share (everything but the OpenCV calls); the example rig's 2-pod capture
+//! to a fused scan (the daemon's case); a 4-pod capture to a fused scan or a mesh; first
+//! captures (rectification maps built) apart from later ones (maps cached). The captures are rendered by the virtual rig. Run:
 //! `cargo bench --bench stereo`.
 
 use conformd::stereo::reconstruct::{
@@ -93,8 +93,9 @@ fn main() {
         own / p * 100.0,
         if own / p <= 0.15 { "met" } else { "MISSED" }
     );
-    // four pods to a fused scan, and to a mesh with holes
-    for as_mesh in [false, true] {
+    // the example rig's two pods (the daemon's case: each worker process builds the maps,
+    // as a first capture does), and four pods to a fused scan and to a mesh with holes
+    for (count, as_mesh, target) in [(2, false, 0.6), (4, false, 4.0), (4, true, 4.0)] {
         let mut cache = RectifierCache::default();
         let mut n = (0, 0);
         let all: Vec<f64> = (0..4)
@@ -102,6 +103,7 @@ fn main() {
                 let t = Instant::now();
                 let inputs: Vec<PodImages> = pods
                     .iter()
+                    .take(count)
                     .enumerate()
                     .map(|(k, pod)| PodImages {
                         pod,
@@ -118,14 +120,16 @@ fn main() {
             .collect();
         let first = all[0];
         let a = median(all[1..].to_vec());
+        // the 2-pod target is the daemon's: maps built in every worker process
+        let judged = if count == 2 { first } else { a };
         println!(
-            "4-pod capture to a {}: median {a:.3} s with cached maps (target 4 s: {}), first capture {first:.3} s; {} vertices, {} triangles",
+            "{count}-pod capture to a {}: median {a:.3} s with cached maps, first capture {first:.3} s (target {target} s: {}); {} vertices, {} triangles",
             if as_mesh {
                 "mesh with holes"
             } else {
                 "fused point cloud"
             },
-            if a <= 4.0 { "met" } else { "MISSED" },
+            if judged <= target { "met" } else { "MISSED" },
             n.0,
             n.1
         );

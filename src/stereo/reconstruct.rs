@@ -362,6 +362,39 @@ impl RectifierCache {
         }
         Ok((&self.entries[&key], ready))
     }
+
+    /// Builds the rectifiers of `pods` this cache lacks, at once; per pod, whether its
+    /// rectifier was ready before.
+    pub fn prepare(&mut self, pods: &[&Pod]) -> Result<Vec<bool>, ReconstructError> {
+        let keys: Vec<u64> = pods.iter().map(|p| pod_fingerprint(p)).collect();
+        let ready: Vec<bool> = keys.iter().map(|k| self.entries.contains_key(k)).collect();
+        let built: Vec<Result<(u64, PodRectifier), ReconstructError>> = pods
+            .par_iter()
+            .zip(&keys)
+            .zip(&ready)
+            .filter(|(_, r)| !**r)
+            .map(|((p, k), _)| {
+                PodRectifier::new(p)
+                    .map(|r| (*k, r))
+                    .map_err(|source| ReconstructError::OpenCv {
+                        pod: p.id.clone(),
+                        source,
+                    })
+            })
+            .collect();
+        for b in built {
+            let (k, r) = b?;
+            self.entries.insert(k, r);
+            self.built += 1;
+        }
+        self.reused += ready.iter().filter(|r| **r).count();
+        Ok(ready)
+    }
+
+    /// The pod's rectifier if it was built ([`RectifierCache::get`], `prepare`).
+    pub fn ready(&self, pod: &Pod) -> Option<&PodRectifier> {
+        self.entries.get(&pod_fingerprint(pod))
+    }
 }
 
 /// A hash of the pod's id and every number of its calibration and pose (a key for this
@@ -603,6 +636,48 @@ impl ReconstructError {
     }
 }
 
+/// One pod's depth grid and its report, its rectifier ready in `cache`.
+fn pod_scan(
+    p: &PodImages,
+    cache: &RectifierCache,
+    o: &ReconstructOptions,
+    maps_reused: bool,
+) -> Result<(DepthGrid, PodReport), ReconstructError> {
+    let id = p.pod.id.clone();
+    let ocv = |source| ReconstructError::OpenCv {
+        pod: id.clone(),
+        source,
+    };
+    let rectifier = cache.ready(p.pod).ok_or_else(|| ReconstructError::Input {
+        pod: id.clone(),
+        msg: "no rectification maps".into(),
+    })?;
+    let mut pr = PodReport {
+        pod: id.clone(),
+        maps_reused,
+        ..Default::default()
+    };
+    let mut sgbm = o.sgbm.clone();
+    if let (true, Some(v)) = (o.auto_disparity_range, o.working_volume)
+        && let Some((min, count)) = rectifier.disparity_range(v)
+    {
+        (sgbm.min_disparity, sgbm.num_disparities) = (min, count);
+    }
+    pr.disparities = [
+        sgbm.min_disparity,
+        sgbm.min_disparity + sgbm.num_disparities,
+    ];
+    let window = o
+        .working_volume
+        .filter(|_| o.volume_window)
+        .and_then(|v| rectifier.volume_window(v, sgbm.min_disparity, sgbm.num_disparities));
+    let grid = pod_grid(rectifier, p.left, p.right, &sgbm, window, &mut pr).map_err(ocv)?;
+    if pr.points == 0 {
+        return Err(ReconstructError::EmptyDisparity { pod: id });
+    }
+    Ok((grid, pr))
+}
+
 /// A capture's pods to one scan in the rig frame: a point cloud with normals ([`fuse`]),
 /// or (`as_mesh`) every pod's triangulated depth grid in one mesh with holes
 /// ([`fuse_meshes`]). Each pod's rectification comes from `cache`; with a working volume
@@ -615,13 +690,11 @@ pub fn reconstruct(
     report: &mut ReconstructReport,
 ) -> Result<Mesh, ReconstructError> {
     let t = Instant::now();
-    let mut grids = Vec::new();
     for p in pods {
-        let id = p.pod.id.clone();
         let n = (p.pod.left.width * p.pod.left.height) as usize;
         if p.left.len() != n || p.right.len() != n {
             return Err(ReconstructError::Input {
-                pod: id,
+                pod: p.pod.id.clone(),
                 msg: format!(
                     "images of {} and {} pixels, the calibration is for {}x{}",
                     p.left.len(),
@@ -631,34 +704,19 @@ pub fn reconstruct(
                 ),
             });
         }
-        let ocv = |source| ReconstructError::OpenCv {
-            pod: id.clone(),
-            source,
-        };
-        let (rectifier, maps_reused) = cache.get(p.pod).map_err(ocv)?;
-        let mut pr = PodReport {
-            pod: id.clone(),
-            maps_reused,
-            ..Default::default()
-        };
-        let mut sgbm = o.sgbm.clone();
-        if let (true, Some(v)) = (o.auto_disparity_range, o.working_volume)
-            && let Some((min, count)) = rectifier.disparity_range(v)
-        {
-            (sgbm.min_disparity, sgbm.num_disparities) = (min, count);
-        }
-        pr.disparities = [
-            sgbm.min_disparity,
-            sgbm.min_disparity + sgbm.num_disparities,
-        ];
-        let window = o
-            .working_volume
-            .filter(|_| o.volume_window)
-            .and_then(|v| rectifier.volume_window(v, sgbm.min_disparity, sgbm.num_disparities));
-        let grid = pod_grid(rectifier, p.left, p.right, &sgbm, window, &mut pr).map_err(ocv)?;
-        if pr.points == 0 {
-            return Err(ReconstructError::EmptyDisparity { pod: id });
-        }
+    }
+    // every pod's rectifier first (the cache is the pods' only shared state), then the
+    // pods matched at once: OpenCV's matcher leaves cores idle between its passes
+    let reused = cache.prepare(&pods.iter().map(|p| p.pod).collect::<Vec<_>>())?;
+    let cache = &*cache;
+    let matched: Vec<Result<(DepthGrid, PodReport), ReconstructError>> = pods
+        .par_iter()
+        .zip(reused)
+        .map(|(p, maps_reused)| pod_scan(p, cache, o, maps_reused))
+        .collect();
+    let mut grids = Vec::new();
+    for m in matched {
+        let (grid, pr) = m?;
         report.pods.push(pr);
         grids.push(grid);
     }
