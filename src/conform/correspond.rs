@@ -445,9 +445,7 @@ fn estimate_normals(points: &[V3], tree: &ImmutableKdTree<f64, 3>) -> Vec<V3> {
                 let d = points[m.item as usize] - c;
                 acc + d * d.transpose()
             });
-            let eig = cov.symmetric_eigen();
-            let k = eig.eigenvalues.imin();
-            let n: V3 = eig.eigenvectors.column(k).into();
+            let n = crate::mesh::least_axis(&cov);
             if n.dot(&(p - centroid)) < 0.0 { -n } else { n }
         })
         .collect()

@@ -889,8 +889,7 @@ pub fn fuse(points: Vec<(V3, V3)>, o: &ReconstructOptions, report: &mut Reconstr
                     let d = mesh.vertices[j as usize] - c;
                     a + d * d.transpose()
                 });
-                let e = cov.symmetric_eigen();
-                let n: V3 = e.eigenvectors.column(e.eigenvalues.imin()).into();
+                let n = crate::mesh::least_axis(&cov);
                 if n.dot(&(cam - p)) < 0.0 { -n } else { n }
             })
             .collect();
