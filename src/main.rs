@@ -78,6 +78,7 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
             parent,
             stage,
             landmarks,
+            template_cache,
         } => {
             if let Some(pid) = parent {
                 cli::exit_with_parent(pid);
@@ -90,13 +91,29 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
             };
             let landmarks = landmarks.as_deref();
             if json {
-                let r = jobs::process(&capture, &config, &out, landmarks, write, &mut |_| {});
+                let r = jobs::process(
+                    &capture,
+                    &config,
+                    &out,
+                    landmarks,
+                    write,
+                    template_cache.as_deref(),
+                    &mut |_| {},
+                );
                 let line = serde_json::to_string(&jobs::ProcessOutcome::of(&r, write));
                 println!("{}", line.expect("an outcome serialises"));
                 r?;
             } else {
                 let (pb, mut tick) = progress::pipeline(30);
-                let r = jobs::process(&capture, &config, &out, landmarks, write, &mut tick);
+                let r = jobs::process(
+                    &capture,
+                    &config,
+                    &out,
+                    landmarks,
+                    write,
+                    template_cache.as_deref(),
+                    &mut tick,
+                );
                 pb.finish_and_clear();
                 let (dir, report) = r?;
                 println!("{report}\nwrote {}", dir.display());

@@ -83,8 +83,16 @@ fn process_gives_what_reconstruct_then_conform_give() {
     let (sim, set) = simulated();
     let cfg = station_file(d, "");
     let results = d.join("results");
-    let (folder, report) =
-        jobs::process(set, &cfg, &results, None, jobs::Write::Publish, &mut |_| {}).unwrap();
+    let (folder, report) = jobs::process(
+        set,
+        &cfg,
+        &results,
+        None,
+        jobs::Write::Publish,
+        None,
+        &mut |_| {},
+    )
+    .unwrap();
     let id = set.file_name().unwrap().to_string_lossy().to_string();
     assert_eq!(folder, results.join(&id));
     for f in RESULT_FILES {
@@ -815,6 +823,7 @@ fn process_lands_near_the_truth_it_was_rendered_from() {
         &dir.path().join("results"),
         None,
         jobs::Write::Publish,
+        None,
         &mut |_| {},
     )
     .unwrap();
@@ -915,4 +924,72 @@ fn process_lands_near_the_truth_it_was_rendered_from() {
     for ((n, e), (_, bound)) in off.iter().zip(bounds) {
         assert!(e < &bound, "{n} {:.2}% off the truth's", e * 100.0);
     }
+}
+
+/// A worker process keeps the generic template it built (`process --template-cache`):
+/// the next one reads it back and gives the same result to the byte; a damaged cache is
+/// built again, not an error. (Child processes of one thread each: within this test
+/// process, other tests' work changes how the thread pool splits sums.)
+#[test]
+fn a_cached_template_changes_no_result() {
+    use conformd::template::{self, Kind, TemplateSource};
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let (_, set) = simulated();
+    let cfg = station_file(d, "");
+    let cache = d.join("cache");
+    let run = |out: &str| {
+        let out = d.join(out);
+        let o = Command::new(BIN)
+            .arg("process")
+            .arg(set)
+            .arg("--config")
+            .arg(&cfg)
+            .arg("--out")
+            .arg(&out)
+            .arg("--template-cache")
+            .arg(&cache)
+            .env("RAYON_NUM_THREADS", "1")
+            .output_within(CHILD_LIMIT);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        std::fs::read(out.join(set.file_name().unwrap()).join("conformed.ply")).unwrap()
+    };
+    let built = run("built");
+    let cached: Vec<PathBuf> = std::fs::read_dir(&cache)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    assert_eq!(cached.len(), 1, "{cached:?}");
+    let written = std::fs::metadata(&cached[0]).unwrap().modified().unwrap();
+    let read_back = run("read");
+    assert!(
+        built == read_back,
+        "the result from the cached template differs"
+    );
+    assert_eq!(
+        std::fs::metadata(&cached[0]).unwrap().modified().unwrap(),
+        written,
+        "the cache was read, not written again"
+    );
+    // damaged: built again and rewritten, the same figure (this test program's own
+    // cache: another program's templates are kept apart)
+    let own = d.join("own-cache");
+    let source = TemplateSource {
+        vertices: Some(3000),
+        ..TemplateSource::generic(Kind::Pig)
+    };
+    source.figure_cached(Some(&own)).unwrap();
+    let file = std::fs::read_dir(&own)
+        .unwrap()
+        .next()
+        .unwrap()
+        .unwrap()
+        .path();
+    let mut bytes = std::fs::read(&file).unwrap();
+    let mid = bytes.len() / 2;
+    bytes[mid] ^= 0xff;
+    std::fs::write(&file, &bytes).unwrap();
+    let (_, fig) = source.figure_cached(Some(&own)).unwrap().unwrap();
+    assert_eq!(fig.mesh, template::build(Kind::Pig, 3000).mesh);
+    assert_ne!(std::fs::read(&file).unwrap(), bytes, "not rewritten");
 }

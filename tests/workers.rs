@@ -598,6 +598,7 @@ exec sleep 60
         threads: 1,
         timeout: Duration::from_secs(1),
         max_attempts: 3,
+        template_cache: None,
     };
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()

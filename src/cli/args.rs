@@ -86,6 +86,10 @@ pub enum Cmd {
         /// with the template's: what an operator placed on the capture page
         #[arg(long)]
         landmarks: Option<PathBuf>,
+        /// a folder where a generic template is kept once built, for the next process
+        /// of the same program (the daemon's workers use `<data>/cache`)
+        #[arg(long)]
+        template_cache: Option<PathBuf>,
     },
     /// Run the station: capture on trigger, watch captures/ and incoming/, process every
     /// set once (journal, worker processes), serve the HTTP API and status page.

@@ -196,6 +196,7 @@ impl Shared {
                 .unwrap_or(1),
             timeout: Duration::from_secs_f64(self.cfg.daemon.job_timeout_s),
             max_attempts: self.cfg.daemon.max_attempts,
+            template_cache: Some(self.cfg.station.cache()),
         }
     }
     pub fn uptime(&self) -> f64 {

@@ -25,6 +25,8 @@ pub struct JobSpec {
     pub threads: usize,
     pub timeout: Duration,
     pub max_attempts: u32,
+    /// where the child keeps a generic template between jobs (`--template-cache`)
+    pub template_cache: Option<PathBuf>,
 }
 
 /// How a child process ended.
@@ -56,6 +58,9 @@ pub async fn run_child(spec: &JobSpec, job: &Job, abort: &tokio::sync::Notify) -
     // refuses it naming why, rather than a refit running without the operator's points
     if std::fs::symlink_metadata(&landmarks).is_ok() {
         cmd.arg("--landmarks").arg(&landmarks);
+    }
+    if let Some(c) = &spec.template_cache {
+        cmd.arg("--template-cache").arg(c);
     }
     cmd.arg("--parent")
         .arg(std::process::id().to_string())

@@ -103,7 +103,8 @@ fn check_files(cfg: &StationConfig) -> Result<(), JobError> {
 
 /// Processes one capture set with the station file's pipeline and writes
 /// `out/<capture id>/` (scan, conformed mesh, report, preview) atomically; `landmarks`
-/// names a file of scan landmarks (`name x y z`) an operator placed, to fit by.
+/// names a file of scan landmarks (`name x y z`) an operator placed, to fit by;
+/// `template_cache` a folder where a generic template is kept between processes.
 ///
 /// Example: `conformd process captures/<id> --config station.toml --out results`; see
 /// `tests/pipeline.rs`.
@@ -113,12 +114,13 @@ pub fn process(
     out: &Path,
     landmarks: Option<&Path>,
     write: Write,
+    template_cache: Option<&Path>,
     progress: &mut (dyn FnMut(Progress) + Send),
 ) -> Result<(PathBuf, ProcessReport), JobError> {
     crate::files::refuse_inside(out, capture, "the capture set")?;
     let landmarks = landmarks.map(crate::mesh::read_landmarks).transpose()?;
     let cfg = StationConfig::load(config)?;
-    let mut pipeline = Pipeline::from_config(&cfg)?;
+    let mut pipeline = Pipeline::from_config_cached(&cfg, template_cache)?;
     let mut control = Control {
         cancel: None,
         progress: Some(progress),

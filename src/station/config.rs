@@ -44,6 +44,11 @@ impl StationSection {
     pub fn landmarks(&self) -> PathBuf {
         self.data.join("landmarks")
     }
+    /// what the worker processes keep between jobs (a generic template once built);
+    /// anything in it may be deleted
+    pub fn cache(&self) -> PathBuf {
+        self.data.join("cache")
+    }
 }
 
 /// `[rig]`: the stereo rig that reconstructs every capture.

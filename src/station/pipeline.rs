@@ -536,6 +536,15 @@ impl Pipeline {
     /// Sets a pipeline up from a station file's `[template]`, `[conform]`, `[rig]` and
     /// `[model]` (the model only when its file exists yet).
     pub fn from_config(cfg: &StationConfig) -> Result<Pipeline, PipelineError> {
+        Self::from_config_cached(cfg, None)
+    }
+
+    /// [`Pipeline::from_config`] with a generic template kept in the folder
+    /// `template_cache` between processes ([`TemplateSource::figure_cached`]).
+    pub fn from_config_cached(
+        cfg: &StationConfig,
+        template_cache: Option<&Path>,
+    ) -> Result<Pipeline, PipelineError> {
         let name = cfg.file.display().to_string();
         let rig = cfg.rig.as_ref().ok_or(PipelineError::NoRig(name.clone()))?;
         let source = cfg
@@ -543,7 +552,7 @@ impl Pipeline {
             .as_ref()
             .ok_or(PipelineError::NoTemplate(name))?;
         // a generic template's figure serves the template and the posture removal alike
-        let figure = source.figure()?;
+        let figure = source.figure_cached(template_cache)?;
         let (template, template_landmarks) = match &figure {
             Some((_, fig)) => (fig.mesh.clone(), Some(fig.landmarks())),
             None => source.load()?,

@@ -108,11 +108,52 @@ impl TemplateSource {
     /// A generic template's figure (mesh, skeleton, skin weights) with its kind; `None`
     /// for a template mesh.
     pub fn figure(&self) -> Result<Option<(Kind, Figure)>, FileError> {
+        self.figure_cached(None)
+    }
+
+    /// [`TemplateSource::figure`], kept in the folder `cache` between processes: built
+    /// once per build of this program and resolution, read back to the bit after (a
+    /// worker process then starts 0.1 s sooner). A cache that cannot be read or written
+    /// is only warned about: the figure is built as without one.
+    pub fn figure_cached(&self, cache: Option<&Path>) -> Result<Option<(Kind, Figure)>, FileError> {
         self.check()
             .map_err(|e| FileError::content("[template]", e))?;
-        Ok(self
-            .generic
-            .map(|kind| (kind, build(kind, self.vertices.unwrap_or(10_000)))))
+        let Some(kind) = self.generic else {
+            return Ok(None);
+        };
+        let vertices = self.vertices.unwrap_or(10_000);
+        let Some(dir) = cache else {
+            return Ok(Some((kind, build(kind, vertices))));
+        };
+        let stem = format!("{}-{vertices}-", format!("{kind:?}").to_lowercase());
+        let path = dir.join(format!("{stem}{:016x}.figure", program_fingerprint()));
+        match std::fs::read(&path) {
+            Ok(bytes) => match Figure::from_bytes(&skeleton(kind), &bytes) {
+                Ok(fig) => return Ok(Some((kind, fig))),
+                Err(e) => tracing::warn!("{}: {e}; the template is built again", path.display()),
+            },
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+            Err(e) => tracing::warn!("{}: {e}; the template is built again", path.display()),
+        }
+        let fig = build(kind, vertices);
+        let stored = std::fs::create_dir_all(dir)
+            .map_err(|e| e.to_string())
+            .and_then(|_| {
+                crate::files::write_atomic(&path, &fig.to_bytes()).map_err(|e| e.to_string())
+            });
+        match stored {
+            // the same template of earlier builds of the program will not be read again
+            Ok(()) => {
+                for e in std::fs::read_dir(dir).into_iter().flatten().flatten() {
+                    let name = e.file_name().to_string_lossy().to_string();
+                    if name.starts_with(&stem) && name.ends_with(".figure") && e.path() != path {
+                        let _ = std::fs::remove_file(e.path());
+                    }
+                }
+            }
+            Err(e) => tracing::warn!("{}: {e}; the template is not cached", path.display()),
+        }
+        Ok(Some((kind, fig)))
     }
 
     /// The template mesh (with groups) and its landmarks, if it has any.
@@ -166,6 +207,19 @@ impl TemplateSource {
         let rig = self.rig_file(&mesh)?;
         Ok((mesh, lms, rig))
     }
+}
+
+/// This program's build: its version and its executable's size and time (a rebuilt
+/// binary is another program, whose templates may differ).
+fn program_fingerprint() -> u64 {
+    use std::hash::{Hash, Hasher};
+    let mut h = std::hash::DefaultHasher::new();
+    env!("CARGO_PKG_VERSION").hash(&mut h);
+    if let Ok(m) = std::env::current_exe().and_then(std::fs::metadata) {
+        m.len().hash(&mut h);
+        m.modified().ok().hash(&mut h);
+    }
+    h.finish()
 }
 
 /// Which generic template.
