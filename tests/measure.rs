@@ -225,6 +225,10 @@ fn bad_definitions_are_refused_naming_the_measurement() {
         "[[measurement]]\nname = \"s\"\nkind = \"surface\"\nfrom = 7\nto = 7\n",
         "from and to are the same place",
     );
+    refuse(
+        "[[measurement]]\nname = \"h\"\nkind = \"height\"\npoint = \"withers\"\nposture_free = \"straightened\"\n",
+        "defs.toml",
+    );
     refuse("", "defines no measurement");
     refuse("[frame]\nfloor = 0.0\n", "defines no measurement");
     // an open template encloses no volume
@@ -718,5 +722,56 @@ fn a_girth_from_its_group_leaves_an_arm_against_the_chest_out() {
             "{warning}"
         );
         assert!(w.warning.is_none());
+    }
+}
+
+/// `posture_free = "as_measured"`: the posture-free value of such a measurement is the
+/// raw one; the same definition without it is moved by the parts (and differs on a posed
+/// subject).
+#[test]
+fn a_measurement_marked_as_measured_keeps_its_raw_value_posture_free() {
+    let fig = template::build(Kind::Body, 3000);
+    let lms = fig.landmarks();
+    let text = |how: &str| {
+        format!(
+            "[[measurement]]\nname = \"crotch\"\nkind = \"height\"\npoint = [0.0, 0.0, 0.80]\n{how}\n\
+             [[measurement]]\nname = \"neck\"\nkind = \"girth\"\nat = [0.0, 0.0, 1.555]\n\
+             axis = [[\"shoulder_top_l\", \"shoulder_top_r\"], \"head_top\"]\n{how}\n"
+        )
+    };
+    let posed = template::subject(
+        &fig,
+        Kind::Body,
+        &BTreeMap::new(),
+        &template::pose(
+            Kind::Body,
+            &[("nod", 25.0), ("hip_l", -30.0), ("knee_l", 40.0)]
+                .map(|(k, v)| (k.to_string(), v))
+                .into(),
+        ),
+    )
+    .unwrap();
+    let measure = |how: &str| {
+        let r = Definitions::parse(&text(how), "d")
+            .unwrap()
+            .resolve(&fig.mesh, &lms)
+            .unwrap();
+        let removal = conformd::measure::PostureRemoval::for_figure(&fig, &r);
+        let raw = r.measure(&posed).unwrap();
+        let free = removal.measure(&r, "posed", &posed).unwrap();
+        (raw, free)
+    };
+    let (raw, free) = measure("posture_free = \"as_measured\"");
+    for name in ["crotch", "neck"] {
+        assert_eq!(value(&raw, name), value(&free, name), "{name}");
+    }
+    let (raw_parts, moved) = measure("");
+    for name in ["crotch", "neck"] {
+        assert_eq!(value(&raw_parts, name), value(&raw, name), "{name}");
+        assert!(
+            (value(&moved, name) - value(&raw, name)).abs() > 1e-4 * value(&raw, name),
+            "{name}: the parts changed nothing ({})",
+            value(&raw, name)
+        );
     }
 }

@@ -80,6 +80,28 @@ pub struct Definition {
     pub name: String,
     #[serde(flatten)]
     pub kind: Kind,
+    /// how its posture-free value is taken
+    #[serde(default, skip_serializing_if = "PostureFree::is_parts")]
+    pub posture_free: PostureFree,
+}
+
+/// How a measurement's posture-free value is taken by the parts method.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PostureFree {
+    /// its definition moved into the subject's posture by the parts under it
+    #[default]
+    Parts,
+    /// as measured: for a measurement the posture does not change but the parts' fit
+    /// would disturb (a section on a joint the parts on both sides pull at, a height
+    /// the legs stand to whatever the arms do), chosen where it repeats better
+    AsMeasured,
+}
+
+impl PostureFree {
+    fn is_parts(&self) -> bool {
+        *self == PostureFree::Parts
+    }
 }
 
 /// The frame heights are measured in: the floor is the plane `up . x = floor`; lengths
@@ -259,7 +281,7 @@ impl Definitions {
                 }
                 _ => {}
             }
-            out.push((d.name.clone(), d.kind.clone(), kind));
+            out.push((d.name.clone(), d.kind.clone(), kind, d.posture_free));
         }
         Ok(Resolved {
             vertices: template.vertices.len(),
@@ -382,7 +404,7 @@ pub struct Resolved {
     up: V3,
     floor: f64,
     unit: String,
-    items: Vec<(String, Kind, Resolved1)>,
+    items: Vec<(String, Kind, Resolved1, PostureFree)>,
 }
 
 /// One measured value.
@@ -400,7 +422,7 @@ pub struct Measurement {
 
 impl Resolved {
     pub fn names(&self) -> Vec<String> {
-        self.items.iter().map(|(n, _, _)| n.clone()).collect()
+        self.items.iter().map(|(n, ..)| n.clone()).collect()
     }
 
     /// Every measurement on `mesh` (the template's vertex order).
@@ -450,13 +472,14 @@ impl Resolved {
             f.iter().map(|&i| at(i)).sum::<V3>() / f.len() as f64
         };
         let place = |f: &Fixed| mean(f, &|i| v[i as usize]);
-        // lengths and heights: with a posture, the joints' rotations taken out
-        let length_place = |f: &Fixed| match posed {
-            Some(p) => mean(f, &|i| p.normalised(i)),
-            None => place(f),
-        };
         let mut out = Vec::with_capacity(self.items.len());
-        for (name, kind, r) in &self.items {
+        for (name, kind, r, how) in &self.items {
+            let posed = posed.filter(|_| *how == PostureFree::Parts);
+            // lengths and heights: with a posture, the joints' rotations taken out
+            let length_place = |f: &Fixed| match posed {
+                Some(p) => mean(f, &|i| p.normalised(i)),
+                None => place(f),
+            };
             let err = |message: String| MeasureError::Definition {
                 name: name.clone(),
                 message,
