@@ -100,7 +100,7 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
                     template_cache.as_deref(),
                     &mut |_| {},
                 );
-                let line = serde_json::to_string(&jobs::ProcessOutcome::of(&r, write));
+                let line = serde_json::to_string(&jobs::process_outcome(&r, write));
                 println!("{}", line.expect("an outcome serialises"));
                 r?;
             } else {

@@ -5,7 +5,7 @@
 //! worker's (a worker whose lease ran out while another took the job discards its own).
 
 use super::journal::{Finish, Finished, Job, Journal, JournalError};
-use crate::jobs::ProcessOutcome;
+use crate::station::ProcessOutcome;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 use tracing::{error, info, warn};
@@ -178,7 +178,11 @@ pub fn record(
     let nothing = &mut || Ok(());
     let (how, recorded) = match &ended {
         Ended::Outcome(o) if o.ok => {
-            let seconds = o.seconds.clone().unwrap_or_default();
+            let seconds = o
+                .seconds
+                .as_ref()
+                .and_then(|s| serde_json::to_value(s).ok())
+                .unwrap_or_default();
             let staged = o.result.clone().filter(|_| o.staged);
             let Some(staged) = staged else {
                 // a program that published by itself: nothing to rename
@@ -220,7 +224,7 @@ pub fn record(
             return r;
         }
         Ended::Outcome(o) => {
-            let stage = o.stage.clone().unwrap_or_else(|| "unknown".into());
+            let stage = o.stage.map_or_else(|| "unknown".into(), |s| s.to_string());
             let error = o.error.clone().unwrap_or_else(|| "failed".into());
             let retry_at = if o.permanent { None } else { retry_at };
             log_failure(job, &stage, &error, retry_at.is_some(), o.permanent);

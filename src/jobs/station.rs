@@ -3,7 +3,8 @@
 
 use super::*;
 use crate::station::StationConfig;
-use crate::station::pipeline::{Control, Pipeline, ProcessReport, Progress};
+use crate::station::outcome::ProcessOutcome;
+use crate::station::pipeline::{Control, Pipeline, ProcessReport, Progress, Stage};
 use std::path::{Path, PathBuf};
 
 /// Reads and checks a station file; the error lists every problem with its line.
@@ -143,74 +144,14 @@ pub enum Write {
     Stage,
 }
 
-/// What `conformd process --json` prints as its one line on stdout: how a worker process
-/// tells the daemon what happened to its capture.
-#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
-pub struct ProcessOutcome {
-    pub ok: bool,
-    pub capture: Option<String>,
-    /// the result folder, or with `staged` the hidden folder it waits in
-    pub result: Option<PathBuf>,
-    #[serde(default)]
-    pub staged: bool,
-    /// seconds per stage
-    pub seconds: Option<serde_json::Value>,
-    /// the mean distance to the scan, relative to the diagonal, and the filled share
-    pub mean_distance_relative: Option<f64>,
-    pub filled: Option<usize>,
-    /// the names of the operator's landmarks the fit used (comma-separated)
-    #[serde(default)]
-    pub landmarks: Option<String>,
-    /// the failed stage (`read`, `reconstruct`, `conform`, `score`, `write`, or `setup`
-    /// when the station file or its template could not be loaded)
-    pub stage: Option<String>,
-    /// the capture is at fault: do not retry
-    pub permanent: bool,
-    pub error: Option<String>,
-}
-
-impl ProcessOutcome {
-    pub fn of(r: &Result<(PathBuf, ProcessReport), JobError>, write: Write) -> ProcessOutcome {
-        match r {
-            Ok((dir, report)) => ProcessOutcome {
-                ok: true,
-                capture: Some(report.capture.clone()),
-                result: Some(dir.clone()),
-                staged: write == Write::Stage,
-                seconds: serde_json::to_value(&report.seconds).ok(),
-                mean_distance_relative: Some(report.conformation.mean_distance_relative),
-                filled: Some(report.conformation.filled),
-                landmarks: report.manual_landmarks.as_ref().map(|l| {
-                    l.iter()
-                        .map(|l| l.name.as_str())
-                        .collect::<Vec<_>>()
-                        .join(", ")
-                }),
-                stage: None,
-                permanent: false,
-                error: None,
-            },
-            Err(e) => {
-                let (capture, stage, permanent) = match e {
-                    JobError::Stage(s) => {
-                        (Some(s.capture.clone()), s.stage.to_string(), s.permanent)
-                    }
-                    _ => (None, "setup".to_string(), false),
-                };
-                ProcessOutcome {
-                    ok: false,
-                    capture,
-                    result: None,
-                    staged: false,
-                    seconds: None,
-                    mean_distance_relative: None,
-                    filled: None,
-                    landmarks: None,
-                    stage: Some(stage),
-                    permanent,
-                    error: Some(e.to_string()),
-                }
-            }
-        }
+/// The outcome line `conformd process --json` prints for `r`.
+pub fn process_outcome(
+    r: &Result<(PathBuf, ProcessReport), JobError>,
+    write: Write,
+) -> ProcessOutcome {
+    match r {
+        Ok((dir, report)) => ProcessOutcome::done(dir.clone(), report, write == Write::Stage),
+        Err(JobError::Stage(s)) => ProcessOutcome::failed(s),
+        Err(e) => ProcessOutcome::failed_at(None, Stage::Setup, false, e.to_string()),
     }
 }

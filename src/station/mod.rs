@@ -5,10 +5,12 @@
 
 pub mod config;
 pub mod export;
+pub mod outcome;
 pub mod pipeline;
 pub mod placed;
 pub mod review;
 pub mod view;
 
 pub use config::{ConfigError, StationConfig};
+pub use outcome::ProcessOutcome;
 pub use pipeline::{Control, Pipeline, PipelineError, Processed, Stage, StageError};

@@ -24,9 +24,12 @@ use std::time::Instant;
 pub const MIN_SCAN_POINTS: usize = 200;
 
 /// The stages of [`Pipeline::process`].
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Stage {
+    /// the station file and its template loaded, before any capture is read (a worker
+    /// process's start; no capture is at fault)
+    Setup,
     Read,
     Reconstruct,
     Conform,
@@ -37,6 +40,7 @@ pub enum Stage {
 impl std::fmt::Display for Stage {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.write_str(match self {
+            Stage::Setup => "setup",
             Stage::Read => "read",
             Stage::Reconstruct => "reconstruct",
             Stage::Conform => "conform",
@@ -143,8 +147,9 @@ impl Control<'_> {
     }
 }
 
-/// Seconds spent in each stage of one capture.
-#[derive(Debug, Clone, Default, serde::Serialize)]
+/// Seconds spent in each stage of one capture (a stage missing from a worker's line is 0).
+#[derive(Debug, Clone, Default, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct StageSeconds {
     pub read: f64,
     pub reconstruct: f64,
