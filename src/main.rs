@@ -90,30 +90,25 @@ fn run(cli: Cli) -> Result<(), jobs::JobError> {
                 jobs::Write::Publish
             };
             let landmarks = landmarks.as_deref();
-            if json {
-                let r = jobs::process(
+            let run = |tick: &mut (dyn FnMut(conformd::station::pipeline::Progress) + Send)| {
+                jobs::process(
                     &capture,
                     &config,
                     &out,
                     landmarks,
                     write,
                     template_cache.as_deref(),
-                    &mut |_| {},
-                );
+                    tick,
+                )
+            };
+            if json {
+                let r = run(&mut |_| {});
                 let line = serde_json::to_string(&jobs::process_outcome(&r, write));
                 println!("{}", line.expect("an outcome serialises"));
                 r?;
             } else {
                 let (pb, mut tick) = progress::pipeline(30);
-                let r = jobs::process(
-                    &capture,
-                    &config,
-                    &out,
-                    landmarks,
-                    write,
-                    template_cache.as_deref(),
-                    &mut tick,
-                );
+                let r = run(&mut tick);
                 pb.finish_and_clear();
                 let (dir, report) = r?;
                 println!("{report}\nwrote {}", dir.display());
