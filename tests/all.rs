@@ -21,6 +21,8 @@ mod daemon;
 mod devset;
 #[path = "hostile.rs"]
 mod hostile;
+#[path = "layering.rs"]
+mod layering;
 #[path = "measure.rs"]
 mod measure;
 #[path = "mesh_io.rs"]
