@@ -362,18 +362,18 @@ impl Figure {
 
     /// The figure of `skel` whose mesh and weights [`Figure::to_bytes`] wrote; an error
     /// naming what is wrong when the bytes are not such a figure of this skeleton.
-    pub fn from_bytes(skel: &Skeleton, bytes: &[u8]) -> Result<Figure, String> {
+    pub fn from_bytes(skel: &Skeleton, bytes: &[u8]) -> Result<Figure, FigureBytesError> {
         let body_len = bytes
             .len()
             .checked_sub(8)
             .filter(|n| *n >= FIGURE_MAGIC.len() + 16)
-            .ok_or("too short for a figure")?;
+            .ok_or(FigureBytesError::TooShort)?;
         let (body, sum) = bytes.split_at(body_len);
         if !body.starts_with(FIGURE_MAGIC) {
-            return Err("not a conformd figure".into());
+            return Err(FigureBytesError::NotAFigure);
         }
         if checksum(body).to_le_bytes() != sum {
-            return Err("its checksum does not match (damaged)".into());
+            return Err(FigureBytesError::Damaged);
         }
         let mut r = ByteReader {
             bytes: body,
@@ -382,7 +382,7 @@ impl Figure {
         let nv = r.u64()? as usize;
         let nt = r.u64()? as usize;
         if nv == 0 || nv > 10_000_000 || nt > 20_000_000 {
-            return Err(format!("{nv} vertices and {nt} triangles"));
+            return Err(FigureBytesError::Counts { nv, nt });
         }
         let mut vertices = Vec::with_capacity(nv);
         for _ in 0..nv {
@@ -392,7 +392,7 @@ impl Figure {
         for _ in 0..nt {
             let t = [r.u32()?, r.u32()?, r.u32()?];
             if t.iter().any(|&i| i as usize >= nv) {
-                return Err(format!("a triangle {t:?} beyond its {nv} vertices"));
+                return Err(FigureBytesError::Triangle { t, nv });
             }
             triangles.push(t);
         }
@@ -400,23 +400,26 @@ impl Figure {
         for _ in 0..nv {
             let n = r.u32()? as usize;
             if n > skel.bones.len() {
-                return Err(format!(
-                    "{n} weights on a vertex of {} bones",
-                    skel.bones.len()
-                ));
+                return Err(FigureBytesError::Bones {
+                    found: n,
+                    bones: skel.bones.len(),
+                });
             }
             let mut w = Vec::with_capacity(n);
             for _ in 0..n {
                 let bone = r.u32()?;
                 if bone as usize >= skel.bones.len() {
-                    return Err(format!("bone {bone} of {}", skel.bones.len()));
+                    return Err(FigureBytesError::Bones {
+                        found: bone as usize + 1,
+                        bones: skel.bones.len(),
+                    });
                 }
                 w.push((bone, r.f64()?));
             }
             weights.push(w);
         }
         if r.at != body.len() {
-            return Err(format!("{} bytes left over", body.len() - r.at));
+            return Err(FigureBytesError::LeftOver(body.len() - r.at));
         }
         let mut mesh = Mesh::new(vertices, triangles);
         mesh.groups = groups_of(skel, &weights);
@@ -426,6 +429,27 @@ impl Figure {
             weights,
         })
     }
+}
+
+/// Why bytes are not a figure of the skeleton they were read for.
+#[derive(Debug, thiserror::Error)]
+pub enum FigureBytesError {
+    #[error("too short for a figure")]
+    TooShort,
+    #[error("not a conformd figure")]
+    NotAFigure,
+    #[error("its checksum does not match (damaged)")]
+    Damaged,
+    #[error("{nv} vertices and {nt} triangles")]
+    Counts { nv: usize, nt: usize },
+    #[error("a triangle {t:?} beyond its {nv} vertices")]
+    Triangle { t: [u32; 3], nv: usize },
+    #[error("weights of {found} bones where the skeleton has {bones}")]
+    Bones { found: usize, bones: usize },
+    #[error("cut short at byte {0}")]
+    CutShort(usize),
+    #[error("{0} bytes left over")]
+    LeftOver(usize),
 }
 
 /// FNV-1a over 8-byte words: catches a damaged file, no more.
@@ -445,21 +469,21 @@ struct ByteReader<'a> {
 }
 
 impl ByteReader<'_> {
-    fn take<const N: usize>(&mut self) -> Result<[u8; N], String> {
+    fn take<const N: usize>(&mut self) -> Result<[u8; N], FigureBytesError> {
         let s = self
             .bytes
             .get(self.at..self.at + N)
-            .ok_or_else(|| format!("cut short at byte {}", self.at))?;
+            .ok_or(FigureBytesError::CutShort(self.at))?;
         self.at += N;
         Ok(s.try_into().expect("N bytes"))
     }
-    fn u64(&mut self) -> Result<u64, String> {
+    fn u64(&mut self) -> Result<u64, FigureBytesError> {
         self.take::<8>().map(u64::from_le_bytes)
     }
-    fn u32(&mut self) -> Result<u32, String> {
+    fn u32(&mut self) -> Result<u32, FigureBytesError> {
         self.take::<4>().map(u32::from_le_bytes)
     }
-    fn f64(&mut self) -> Result<f64, String> {
+    fn f64(&mut self) -> Result<f64, FigureBytesError> {
         self.take::<8>().map(f64::from_le_bytes)
     }
 }
@@ -838,16 +862,20 @@ mod tests {
         // damaged, cut short, another skeleton, not a figure: each refused, saying why
         let mut flipped = bytes.clone();
         flipped[100] ^= 1;
-        let e = Figure::from_bytes(&skel, &flipped).unwrap_err();
+        let e = Figure::from_bytes(&skel, &flipped).unwrap_err().to_string();
         assert!(e.contains("checksum"), "{e}");
-        let e = Figure::from_bytes(&skel, &bytes[..bytes.len() / 2]).unwrap_err();
+        let e = Figure::from_bytes(&skel, &bytes[..bytes.len() / 2])
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("checksum"), "{e}");
-        let e = Figure::from_bytes(&skel, b"ply\nformat ascii 1.0\nend_header\n").unwrap_err();
+        let e = Figure::from_bytes(&skel, b"ply\nformat ascii 1.0\nend_header\n")
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("not a conformd figure"), "{e}");
         let mut few = skel.clone();
         few.bones.truncate(3);
-        let e = Figure::from_bytes(&few, &bytes).unwrap_err();
-        assert!(e.contains("bone") || e.contains("weights"), "{e}");
+        let e = Figure::from_bytes(&few, &bytes).unwrap_err().to_string();
+        assert!(e.contains("bones where the skeleton has 3"), "{e}");
     }
 
     #[test]
