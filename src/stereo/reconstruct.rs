@@ -351,21 +351,16 @@ pub struct RectifierCache {
 
 impl RectifierCache {
     /// The pod's rectifier, and whether it was ready (built for an earlier capture).
-    pub fn get(&mut self, pod: &Pod) -> opencv::Result<(&PodRectifier, bool)> {
-        let key = pod_fingerprint(pod);
-        let ready = self.entries.contains_key(&key);
-        if ready {
-            self.reused += 1;
-        } else {
-            self.entries.insert(key, PodRectifier::new(pod)?);
-            self.built += 1;
-        }
-        Ok((&self.entries[&key], ready))
+    pub fn get(&mut self, pod: &Pod) -> Result<(&PodRectifier, bool), ReconstructError> {
+        Ok(self.prepare(&[pod])?.remove(0))
     }
 
-    /// Builds the rectifiers of `pods` this cache lacks, at once; per pod, whether its
-    /// rectifier was ready before.
-    pub fn prepare(&mut self, pods: &[&Pod]) -> Result<Vec<bool>, ReconstructError> {
+    /// Every pod's rectifier, those this cache lacks built at once, each with whether it
+    /// was ready before.
+    pub fn prepare(
+        &mut self,
+        pods: &[&Pod],
+    ) -> Result<Vec<(&PodRectifier, bool)>, ReconstructError> {
         let keys: Vec<u64> = pods.iter().map(|p| pod_fingerprint(p)).collect();
         let ready: Vec<bool> = keys.iter().map(|k| self.entries.contains_key(k)).collect();
         let built: Vec<Result<(u64, PodRectifier), ReconstructError>> = pods
@@ -388,12 +383,7 @@ impl RectifierCache {
             self.built += 1;
         }
         self.reused += ready.iter().filter(|r| **r).count();
-        Ok(ready)
-    }
-
-    /// The pod's rectifier if it was built ([`RectifierCache::get`], `prepare`).
-    pub fn ready(&self, pod: &Pod) -> Option<&PodRectifier> {
-        self.entries.get(&pod_fingerprint(pod))
+        Ok(keys.iter().map(|k| &self.entries[k]).zip(ready).collect())
     }
 }
 
@@ -636,10 +626,10 @@ impl ReconstructError {
     }
 }
 
-/// One pod's depth grid and its report, its rectifier ready in `cache`.
+/// One pod's depth grid and its report.
 fn pod_scan(
     p: &PodImages,
-    cache: &RectifierCache,
+    rectifier: &PodRectifier,
     o: &ReconstructOptions,
     maps_reused: bool,
 ) -> Result<(DepthGrid, PodReport), ReconstructError> {
@@ -648,10 +638,6 @@ fn pod_scan(
         pod: id.clone(),
         source,
     };
-    let rectifier = cache.ready(p.pod).ok_or_else(|| ReconstructError::Input {
-        pod: id.clone(),
-        msg: "no rectification maps".into(),
-    })?;
     let mut pr = PodReport {
         pod: id.clone(),
         maps_reused,
@@ -707,12 +693,11 @@ pub fn reconstruct(
     }
     // every pod's rectifier first (the cache is the pods' only shared state), then the
     // pods matched at once: OpenCV's matcher leaves cores idle between its passes
-    let reused = cache.prepare(&pods.iter().map(|p| p.pod).collect::<Vec<_>>())?;
-    let cache = &*cache;
+    let rectifiers = cache.prepare(&pods.iter().map(|p| p.pod).collect::<Vec<_>>())?;
     let matched: Vec<Result<(DepthGrid, PodReport), ReconstructError>> = pods
         .par_iter()
-        .zip(reused)
-        .map(|(p, maps_reused)| pod_scan(p, cache, o, maps_reused))
+        .zip(rectifiers)
+        .map(|(p, (rectifier, maps_reused))| pod_scan(p, rectifier, o, maps_reused))
         .collect();
     let mut grids = Vec::new();
     for m in matched {
