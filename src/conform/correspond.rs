@@ -440,12 +440,7 @@ fn estimate_normals(points: &[V3], tree: &ImmutableKdTree<f64, 3>) -> Vec<V3> {
         .map(|p| {
             let nb =
                 tree.nearest_n::<SquaredEuclidean>(&[p.x, p.y, p.z], NonZero::new(12).unwrap());
-            let c = nb.iter().map(|m| points[m.item as usize]).sum::<V3>() / nb.len() as f64;
-            let cov = nb.iter().fold(nalgebra::Matrix3::zeros(), |acc, m| {
-                let d = points[m.item as usize] - c;
-                acc + d * d.transpose()
-            });
-            let n = crate::mesh::least_axis(&cov);
+            let n = crate::mesh::plane_normal(nb.iter().map(|m| points[m.item as usize]));
             if n.dot(&(p - centroid)) < 0.0 { -n } else { n }
         })
         .collect()

@@ -33,6 +33,18 @@ pub struct Mesh {
     pub groups: BTreeMap<String, Vec<u32>>,
 }
 
+/// The normal of the plane through `points` (a neighbourhood), sign unspecified: the
+/// least axis of their scatter about their centroid ([`least_axis`]).
+pub fn plane_normal(points: impl Iterator<Item = V3> + Clone) -> V3 {
+    let n = points.clone().count().max(1) as f64;
+    let c = points.clone().sum::<V3>() / n;
+    let scatter = points.fold(nalgebra::Matrix3::zeros(), |a, p| {
+        let d = p - c;
+        a + d * d.transpose()
+    });
+    least_axis(&scatter)
+}
+
 /// The unit axis of least spread of a symmetric positive semi-definite 3x3 matrix (a
 /// neighbourhood's scatter: its plane's normal), sign unspecified. Closed form
 /// (eigenvalues by the trigonometric formula, the vector from two rows' cross product),

@@ -869,12 +869,7 @@ pub fn fuse(points: Vec<(V3, V3)>, o: &ReconstructOptions, report: &mut Reconstr
                         &searched
                     }
                 };
-                let c = nb.iter().map(|&j| mesh.vertices[j as usize]).sum::<V3>() / nb.len() as f64;
-                let cov = nb.iter().fold(nalgebra::Matrix3::zeros(), |a, &j| {
-                    let d = mesh.vertices[j as usize] - c;
-                    a + d * d.transpose()
-                });
-                let n = crate::mesh::least_axis(&cov);
+                let n = crate::mesh::plane_normal(nb.iter().map(|&j| mesh.vertices[j as usize]));
                 if n.dot(&(cam - p)) < 0.0 { -n } else { n }
             })
             .collect();
