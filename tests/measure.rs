@@ -227,7 +227,7 @@ fn bad_definitions_are_refused_naming_the_measurement() {
     );
     refuse(
         "[[measurement]]\nname = \"h\"\nkind = \"height\"\npoint = \"withers\"\nposture_free = \"straightened\"\n",
-        "defs.toml",
+        "unknown variant `straightened`, expected `parts` or `as_measured`",
     );
     refuse("", "defines no measurement");
     refuse("[frame]\nfloor = 0.0\n", "defines no measurement");

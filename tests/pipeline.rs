@@ -992,4 +992,10 @@ fn a_cached_template_changes_no_result() {
     let (_, fig) = source.figure_cached(Some(&own)).unwrap().unwrap();
     assert_eq!(fig.mesh, template::build(Kind::Pig, 3000).mesh);
     assert_ne!(std::fs::read(&file).unwrap(), bytes, "not rewritten");
+    // a cache that cannot be a folder (a file of that name): built without it, no error
+    let not_a_folder = d.join("cache-file");
+    std::fs::write(&not_a_folder, b"x").unwrap();
+    let (_, fig) = source.figure_cached(Some(&not_a_folder)).unwrap().unwrap();
+    assert_eq!(fig.mesh, template::build(Kind::Pig, 3000).mesh);
+    assert_eq!(std::fs::read(&not_a_folder).unwrap(), b"x");
 }
