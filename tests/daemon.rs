@@ -872,6 +872,34 @@ fn the_api_refuses_traversal_oversized_bodies_and_missing_tokens() {
     );
     let daemon = Daemon::start(&cfg, port, &[]);
     let url = |p: &str| daemon.url(p);
+    // the generic template is built into the workers' cache before any capture comes
+    let cache = d.join("data/cache");
+    let figures = || -> Vec<PathBuf> {
+        std::fs::read_dir(&cache)
+            .into_iter()
+            .flatten()
+            .flatten()
+            .map(|e| e.path())
+            .filter(|p| p.extension().is_some_and(|x| x == "figure"))
+            .collect()
+    };
+    daemon.wait_for(Duration::from_secs(60), "the template in the cache", |_| {
+        !figures().is_empty()
+    });
+    let built = figures();
+    assert_eq!(
+        built.len(),
+        1,
+        "the daemon did not build the template ahead: {built:?}"
+    );
+    assert!(
+        built[0]
+            .file_name()
+            .unwrap()
+            .to_string_lossy()
+            .starts_with("pig-1500-"),
+        "{built:?}"
+    );
     // mutating calls: no token, a wrong one, a right one
     assert_eq!(
         request("POST", &url("/api/model/rebuild"), None, None).0,
