@@ -1,7 +1,8 @@
-//! The `conformd` command line, apart from `main`: its arguments (`args`) and the
-//! progress bars it shows during long work (`progress`).
+//! The `conformd` command line, apart from `main`: its arguments (`args`), one file per
+//! command (`commands`) and the progress bars it shows during long work (`progress`).
 
 pub mod args;
+pub mod commands;
 pub mod progress;
 
 use std::path::Path;

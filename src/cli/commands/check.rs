@@ -1,0 +1,15 @@
+//! `conformd check`: a station file checked and shown as resolved.
+
+use crate::cli::args::CheckArgs;
+use conformd::jobs;
+
+pub fn run(a: CheckArgs) -> Result<(), jobs::JobError> {
+    let CheckArgs { config } = a;
+    let cfg = jobs::check(&config)?;
+    println!("{} is a valid station file; resolved:", config.display());
+    print!(
+        "{}",
+        toml::to_string(&cfg.shown()).expect("a station config serialises")
+    );
+    Ok(())
+}
