@@ -786,8 +786,66 @@ fn conform_on_pool(
     progress: &mut Progress,
     cancel: &std::sync::atomic::AtomicBool,
 ) -> Result<Conformed, ConformError> {
-    let cancelled = || cancel.load(std::sync::atomic::Ordering::Relaxed);
     let t_start = Instant::now();
+    check_inputs(template, opts)?;
+    // The scan's search structures and the decimated template (which keeps the landmark
+    // vertices) are independent: built side by side.
+    let ((surface, template_topology), paired) = rayon::join(
+        || (ScanSurface::new(scan), topology::report(template)),
+        || -> Result<_, ConformError> {
+            let pairs = match landmarks {
+                Some((tl, sl)) => Some(pair_landmarks(tl, sl, template)?),
+                None => None,
+            };
+            let level = multires_level(template, pairs.as_ref(), opts);
+            Ok((pairs, level))
+        },
+    );
+    let surface = surface?;
+    let (pairs, level) = paired?;
+    let mut times = StageTimes {
+        setup: t_start.elapsed().as_secs_f64(),
+        ..Default::default()
+    };
+
+    // 1. Global mapping.
+    let t0 = Instant::now();
+    let (hypotheses, mut global_report) =
+        global_mapping(template, rig, &surface, pairs.as_ref(), opts, &mut times)?;
+    times.global = t0.elapsed().as_secs_f64();
+
+    // 2-4. The elastic fit: coarse stage, then the iterations; for each alignment
+    // hypothesis the residuals could not tell apart, kept by the fit's distortion and
+    // distance to the scan (a template turned round fits with torn, stretched springs).
+    // On a decimated level the hypotheses are told apart there, and only the kept one
+    // goes on to the full resolution.
+    let elastic = Elastic {
+        template,
+        surface: &surface,
+        pairs: pairs.as_ref(),
+        opts,
+        fitted: hypotheses.len(),
+        cancel,
+    };
+    let best = match &level {
+        Some(level) => elastic.on_level(level, hypotheses, &mut times, progress)?,
+        None => elastic.at_full_resolution(hypotheses, &mut times, progress)?,
+    };
+    elastic.cancelled()?;
+    if let GlobalReport::Automatic(rep) = &mut global_report {
+        rep.fitted = elastic.fitted;
+        // with a rig the placement was kept before the elastic fit
+        if rep.articulated.is_none() {
+            rep.kept = best.index;
+        }
+        rep.limb_turns = best.turns.clone();
+    }
+    let topology = (template_topology, scan);
+    finish(&elastic, best, global_report, topology, times, t_start)
+}
+
+/// The checks a template and the options must pass before any work.
+fn check_inputs(template: &Mesh, opts: &ConformOptions) -> Result<(), ConformError> {
     opts.validate()?;
     if template.triangles.is_empty() {
         return Err(ConformError::Template(
@@ -805,195 +863,189 @@ fn conform_on_pool(
             template.area()
         )));
     }
-    opts.check_groups(template).map_err(ConformError::Options)?;
-    // The scan's search structures and the decimated template (which keeps the landmark
-    // vertices) are independent: built side by side.
-    let ((surface, template_topology), paired) = rayon::join(
-        || (ScanSurface::new(scan), topology::report(template)),
-        || -> Result<_, ConformError> {
-            let pairs = match landmarks {
-                Some((tl, sl)) => Some(pair_landmarks(tl, sl, template)?),
-                None => None,
-            };
-            let level = multires_level(template, pairs.as_ref(), opts);
-            Ok((pairs, level))
-        },
-    );
-    let surface = surface?;
-    let (pairs, level) = paired?;
-    let n = template.vertices.len();
-    let mut times = StageTimes {
-        setup: t_start.elapsed().as_secs_f64(),
-        ..Default::default()
-    };
+    opts.check_groups(template).map_err(ConformError::Options)
+}
 
-    // 1. Global mapping.
-    let t0 = Instant::now();
-    let (hypotheses, mut global_report) =
-        global_mapping(template, rig, &surface, pairs.as_ref(), opts, &mut times)?;
-    times.global = t0.elapsed().as_secs_f64();
+/// What every hypothesis's elastic fit shares.
+struct Elastic<'a> {
+    template: &'a Mesh,
+    surface: &'a ScanSurface,
+    pairs: Option<&'a Pairs>,
+    opts: &'a ConformOptions,
+    /// how many hypotheses go through the fit
+    fitted: usize,
+    cancel: &'a std::sync::atomic::AtomicBool,
+}
 
-    // 2-4. The elastic fit: coarse stage, then the iterations; for each alignment
-    // hypothesis the residuals could not tell apart, kept by the fit's distortion and
-    // distance to the scan (a template turned round fits with torn, stretched springs).
-    // On a decimated level the hypotheses are told apart there, and only the kept one
-    // goes on to the full resolution.
-    let fitted = hypotheses.len();
-    let score_of = |fit: &fit::Fit, x: &[V3], tris: &[[u32; 3]]| -> f64 {
-        if fitted > 1 {
-            let (m, _) = match_all(&surface, x, tris, &fit.limits);
+impl<'a> Elastic<'a> {
+    fn cancelled(&self) -> Result<(), ConformError> {
+        if self.cancel.load(std::sync::atomic::Ordering::Relaxed) {
+            Err(ConformError::Cancelled)
+        } else {
+            Ok(())
+        }
+    }
+
+    /// A fitted hypothesis's score (lower is better): its distortion and distance to the
+    /// scan; 0 when there is only one.
+    fn score(&self, fit: &fit::Fit, x: &[V3], tris: &[[u32; 3]]) -> f64 {
+        if self.fitted > 1 {
+            let (m, _) = match_all(self.surface, x, tris, &fit.limits);
             let distance = MatchSummary::of(&m).mean_distance / fit.diag;
             fit.baseline.measure(x).edge_length.std + 10.0 * distance
         } else {
             0.0
         }
-    };
-    let mut best: Option<FittedHypothesis> = None;
-    match &level {
-        Some(level) => {
-            let cpairs = pairs.as_ref().map(|p| p.on_level(level));
-            // (score, index, hypothesis, level positions, level fit, level reports)
-            type OnLevel<'l> = (
-                f64,
-                usize,
-                Hypothesis,
-                Vec<V3>,
-                fit::Fit<'l>,
-                Vec<IterationReport>,
-            );
-            let mut coarse_best: Option<OnLevel> = None;
-            for (k, h) in hypotheses.into_iter().enumerate() {
-                let mut cx: Vec<V3> = level.kept.iter().map(|&i| h.x[i as usize]).collect();
-                let mut cfit = fit::Fit::new(&level.mesh, &cx, &h.sim, cpairs.as_ref(), opts);
-                // the decimated level's iterations are cheap: all of them run
-                let coarse_opts = ConformOptions {
-                    tolerance: opts.tolerance * 1e-3,
-                    ..opts.clone()
-                };
-                times.coarse += cfit.coarse(&mut cx, &surface, pairs.is_some(), opts);
-                if cancelled() {
-                    return Err(ConformError::Cancelled);
-                }
-                let (mut reports, _) = cfit.iterate(
-                    &mut cx,
-                    &surface,
-                    &coarse_opts,
-                    &mut times,
-                    progress,
-                    cancel,
-                );
-                if cancelled() {
-                    return Err(ConformError::Cancelled);
-                }
-                // the coarse level's last distance (the full level's first match is of
-                // another mesh)
-                let t = Instant::now();
-                let (m, _) = match_all(&surface, &cx, &level.mesh.triangles, &cfit.limits);
-                times.correspond += t.elapsed().as_secs_f64();
-                if let Some(r) = reports.last_mut() {
-                    r.mean_distance = MatchSummary::of(&m).mean_distance;
-                    r.mean_distance_relative = r.mean_distance / cfit.diag;
-                }
-                let score = score_of(&cfit, &cx, &level.mesh.triangles);
-                if coarse_best.as_ref().is_none_or(|b| score < b.0) {
-                    coarse_best = Some((score, k, h, cx, cfit, reports));
-                }
-            }
-            let (score, k, h, cx, cfit, mut reports) =
-                coarse_best.expect("at least one hypothesis");
-            let mut fit = fit::Fit::new(template, &h.x, &h.sim, pairs.as_ref(), opts);
-            let mut x = fit.take_over(&cfit, &cx, level);
-            let eps = cfit.final_epsilon(opts);
-            // a change of shape (the fit relaxed) needs the full resolution's detail
-            // (corners, edges) longer than a change of posture
-            let iterations = if eps < opts.epsilon_end {
-                opts.multires_iterations.max(opts.max_iterations)
-            } else {
-                opts.multires_iterations
-            };
-            let fine = ConformOptions {
-                max_iterations: iterations,
-                epsilon_start: eps,
-                epsilon_end: eps,
-                epsilon_steps: 1,
-                max_distance_start: opts.max_distance,
+    }
+
+    /// Every hypothesis fitted on the decimated `level`, the best one's fit then carried
+    /// on at full resolution.
+    fn on_level(
+        &self,
+        level: &Decimated,
+        hypotheses: Vec<Hypothesis>,
+        times: &mut StageTimes,
+        progress: &mut Progress,
+    ) -> Result<FittedHypothesis<'a>, ConformError> {
+        let (opts, surface, pairs) = (self.opts, self.surface, self.pairs);
+        let cpairs = pairs.map(|p| p.on_level(level));
+        // (score, index, hypothesis, level positions, level fit, level reports)
+        type OnLevel<'l> = (
+            f64,
+            usize,
+            Hypothesis,
+            Vec<V3>,
+            fit::Fit<'l>,
+            Vec<IterationReport>,
+        );
+        let mut coarse_best: Option<OnLevel> = None;
+        for (k, h) in hypotheses.into_iter().enumerate() {
+            let mut cx: Vec<V3> = level.kept.iter().map(|&i| h.x[i as usize]).collect();
+            let mut cfit = fit::Fit::new(&level.mesh, &cx, &h.sim, cpairs.as_ref(), opts);
+            // the decimated level's iterations are cheap: all of them run
+            let coarse_opts = ConformOptions {
+                tolerance: opts.tolerance * 1e-3,
                 ..opts.clone()
             };
-            let done = reports.len();
-            let mut renumbered = |r: &IterationReport| {
-                let mut r = r.clone();
-                r.iteration += done;
-                progress(&r)
-            };
-            let (more, converged) =
-                fit.iterate(&mut x, &surface, &fine, &mut times, &mut renumbered, cancel);
-            reports.extend(more.into_iter().map(|mut r| {
-                r.iteration += done;
-                r
-            }));
-            best = Some(FittedHypothesis {
-                score,
-                x,
-                fit,
-                reports,
-                converged,
-                index: k,
-                turns: h.turns,
-            });
-        }
-        None => {
-            for (k, Hypothesis { x: x0, sim, turns }) in hypotheses.into_iter().enumerate() {
-                let mut x = x0;
-                let mut fit = fit::Fit::new(template, &x, &sim, pairs.as_ref(), opts);
-                if cancelled() {
-                    return Err(ConformError::Cancelled);
-                }
-                times.coarse += fit.coarse(&mut x, &surface, pairs.is_some(), opts);
-                if cancelled() {
-                    return Err(ConformError::Cancelled);
-                }
-                let (reports, converged) =
-                    fit.iterate(&mut x, &surface, opts, &mut times, progress, cancel);
-                let score = score_of(&fit, &x, &template.triangles);
-                if best.as_ref().is_none_or(|b| score < b.score) {
-                    best = Some(FittedHypothesis {
-                        score,
-                        x,
-                        fit,
-                        reports,
-                        converged,
-                        index: k,
-                        turns,
-                    });
-                }
+            times.coarse += cfit.coarse(&mut cx, surface, pairs.is_some(), opts);
+            self.cancelled()?;
+            let (mut reports, _) =
+                cfit.iterate(&mut cx, surface, &coarse_opts, times, progress, self.cancel);
+            self.cancelled()?;
+            // the coarse level's last distance (the full level's first match is of
+            // another mesh)
+            let t = Instant::now();
+            let (m, _) = match_all(surface, &cx, &level.mesh.triangles, &cfit.limits);
+            times.correspond += t.elapsed().as_secs_f64();
+            if let Some(r) = reports.last_mut() {
+                r.mean_distance = MatchSummary::of(&m).mean_distance;
+                r.mean_distance_relative = r.mean_distance / cfit.diag;
+            }
+            let score = self.score(&cfit, &cx, &level.mesh.triangles);
+            if coarse_best.as_ref().is_none_or(|b| score < b.0) {
+                coarse_best = Some((score, k, h, cx, cfit, reports));
             }
         }
+        let (score, k, h, cx, cfit, mut reports) = coarse_best.expect("at least one hypothesis");
+        let mut fit = fit::Fit::new(self.template, &h.x, &h.sim, pairs, opts);
+        let mut x = fit.take_over(&cfit, &cx, level);
+        let eps = cfit.final_epsilon(opts);
+        // a change of shape (the fit relaxed) needs the full resolution's detail
+        // (corners, edges) longer than a change of posture
+        let iterations = if eps < opts.epsilon_end {
+            opts.multires_iterations.max(opts.max_iterations)
+        } else {
+            opts.multires_iterations
+        };
+        let fine = ConformOptions {
+            max_iterations: iterations,
+            epsilon_start: eps,
+            epsilon_end: eps,
+            epsilon_steps: 1,
+            max_distance_start: opts.max_distance,
+            ..opts.clone()
+        };
+        let done = reports.len();
+        let mut renumbered = |r: &IterationReport| {
+            let mut r = r.clone();
+            r.iteration += done;
+            progress(&r)
+        };
+        let (more, converged) =
+            fit.iterate(&mut x, surface, &fine, times, &mut renumbered, self.cancel);
+        reports.extend(more.into_iter().map(|mut r| {
+            r.iteration += done;
+            r
+        }));
+        Ok(FittedHypothesis {
+            score,
+            x,
+            fit,
+            reports,
+            converged,
+            index: k,
+            turns: h.turns,
+        })
     }
-    if cancelled() {
-        return Err(ConformError::Cancelled);
+
+    /// Every hypothesis fitted at full resolution; the best kept.
+    fn at_full_resolution(
+        &self,
+        hypotheses: Vec<Hypothesis>,
+        times: &mut StageTimes,
+        progress: &mut Progress,
+    ) -> Result<FittedHypothesis<'a>, ConformError> {
+        let (opts, surface) = (self.opts, self.surface);
+        let mut best: Option<FittedHypothesis> = None;
+        for (k, Hypothesis { x: x0, sim, turns }) in hypotheses.into_iter().enumerate() {
+            let mut x = x0;
+            let mut fit = fit::Fit::new(self.template, &x, &sim, self.pairs, opts);
+            self.cancelled()?;
+            times.coarse += fit.coarse(&mut x, surface, self.pairs.is_some(), opts);
+            self.cancelled()?;
+            let (reports, converged) =
+                fit.iterate(&mut x, surface, opts, times, progress, self.cancel);
+            let score = self.score(&fit, &x, &self.template.triangles);
+            if best.as_ref().is_none_or(|b| score < b.score) {
+                best = Some(FittedHypothesis {
+                    score,
+                    x,
+                    fit,
+                    reports,
+                    converged,
+                    index: k,
+                    turns,
+                });
+            }
+        }
+        Ok(best.expect("at least one hypothesis"))
     }
+}
+
+/// The conformed mesh and its report from the kept hypothesis's fit: its distance to
+/// the scan, landmark residual, distortion, folds and the template's watertightness.
+fn finish(
+    elastic: &Elastic,
+    best: FittedHypothesis,
+    global: GlobalReport,
+    (template_topology, scan): (topology::TopologyReport, &Mesh),
+    mut times: StageTimes,
+    t_start: Instant,
+) -> Result<Conformed, ConformError> {
+    let (template, surface, opts) = (elastic.template, elastic.surface, elastic.opts);
+    let n = template.vertices.len();
     let FittedHypothesis {
         x,
         fit,
         mut reports,
         converged,
-        index: kept,
-        turns,
         ..
-    } = best.expect("at least one hypothesis");
-    if let GlobalReport::Automatic(rep) = &mut global_report {
-        rep.fitted = fitted;
-        // with a rig the placement was kept before the elastic fit
-        if rep.articulated.is_none() {
-            rep.kept = kept;
-        }
-        rep.limb_turns = turns;
-    }
+    } = best;
     let diag = fit.diag;
 
     // The distance of the final result to the scan.
     let t = Instant::now();
-    let (final_matches, normals) = match_all(&surface, &x, &template.triangles, &fit.limits);
+    let (final_matches, normals) = match_all(surface, &x, &template.triangles, &fit.limits);
     let fin = MatchSummary::of(&final_matches);
     times.correspond += t.elapsed().as_secs_f64();
     if let Some(r) = reports.last_mut() {
@@ -1003,7 +1055,7 @@ fn conform_on_pool(
     let mut mesh = Mesh::new(x, template.triangles.clone());
     mesh.groups = template.groups.clone();
     mesh.normals = Some(normals);
-    let landmark_rms = pairs.as_ref().filter(|p| !p.names.is_empty()).map(|p| {
+    let landmark_rms = elastic.pairs.filter(|p| !p.names.is_empty()).map(|p| {
         let s: f64 = p
             .vertex
             .iter()
@@ -1023,14 +1075,14 @@ fn conform_on_pool(
         )));
     }
     let final_variation = fit.baseline.measure(&mesh.vertices);
-    let placement = placement_warning(&global_report);
+    let placement = placement_warning(&global);
     let report = ConformReport {
         method: opts.method,
         template_vertices: n,
         template_triangles: template.triangles.len(),
         scan_points: scan.vertices.len(),
         scan_is_mesh: !scan.triangles.is_empty(),
-        global: global_report,
+        global,
         converged,
         final_variation,
         distortion_warning: distortion_warning(&final_variation),

@@ -151,7 +151,119 @@ const MAX_ELEMENTS: usize = 200_000_000;
 /// `x y z` are required, `nx ny nz` are kept when present; faces (`vertex_indices` or
 /// `vertex_index`) with more than three corners are fan-triangulated.
 pub fn read_ply_bytes(path: &str, bytes: &[u8]) -> Result<Mesh, FileError> {
-    // Header: ascii lines up to "end_header".
+    let PlyHeader {
+        encoding,
+        elements,
+        lines: header_lines,
+        body_start,
+    } = read_ply_header(path, bytes)?;
+    let body = &bytes[body_start..];
+    let mut rows: Box<dyn RowSource> = match encoding {
+        PlyEncoding::Ascii => Box::new(AsciiRows::new(body, header_lines)),
+        PlyEncoding::BinaryLittleEndian => Box::new(BinaryRows { body, pos: 0 }),
+    };
+
+    let mut mesh = Mesh::default();
+    let mut normals: Vec<V3> = Vec::new();
+    let mut has_normals = false;
+    let mut seen_vertex = false;
+    for el in &elements {
+        let is_vertex = el.name == "vertex";
+        let is_face = el.name == "face";
+        let col = |n: &str| {
+            el.props
+                .iter()
+                .position(|p| matches!(p, Property::Scalar { name, .. } if name == n))
+        };
+        let (cx, cy, cz) = (col("x"), col("y"), col("z"));
+        let (cnx, cny, cnz) = (col("nx"), col("ny"), col("nz"));
+        let face_list = el.props.iter().position(|p| {
+            matches!(p, Property::List { name, .. } if name == "vertex_indices" || name == "vertex_index")
+        });
+        if is_vertex {
+            if cx.is_none() || cy.is_none() || cz.is_none() {
+                return Err(content_err(
+                    path,
+                    "element 'vertex' lacks an x, y or z property",
+                ));
+            }
+            seen_vertex = true;
+            has_normals = cnx.is_some() && cny.is_some() && cnz.is_some();
+            mesh.vertices.reserve(el.count.min(1 << 24));
+        }
+        if is_face && face_list.is_none() {
+            return Err(content_err(
+                path,
+                "element 'face' lacks a vertex_indices list",
+            ));
+        }
+        let mut scalars = vec![0.0f64; el.props.len()];
+        let mut list: Vec<f64> = Vec::new();
+        for row in 0..el.count {
+            let what = || format!("element '{}' row {}", el.name, row);
+            read_row(rows.as_mut(), el, face_list, &mut scalars, &mut list)
+                .map_err(|m| content_err(path, format!("{}: {m}", what())))?;
+            if is_vertex {
+                let v = V3::new(
+                    scalars[cx.unwrap()],
+                    scalars[cy.unwrap()],
+                    scalars[cz.unwrap()],
+                );
+                if !v.iter().all(|c| c.is_finite()) {
+                    return Err(content_err(
+                        path,
+                        format!("vertex {row}: non-finite coordinate"),
+                    ));
+                }
+                mesh.vertices.push(v);
+                if has_normals {
+                    normals.push(V3::new(
+                        scalars[cnx.unwrap()],
+                        scalars[cny.unwrap()],
+                        scalars[cnz.unwrap()],
+                    ));
+                }
+            } else if is_face {
+                if list.len() < 3 {
+                    return Err(content_err(
+                        path,
+                        format!("face {row}: fewer than 3 vertices"),
+                    ));
+                }
+                push_polygon(&mut mesh.triangles, &list, mesh.vertices.len(), seen_vertex)
+                    .map_err(|m| content_err(path, format!("face {row}: {m}")))?;
+            }
+        }
+    }
+    rows.finish().map_err(|m| content_err(path, m))?;
+    if !seen_vertex {
+        return Err(content_err(path, "no 'vertex' element"));
+    }
+    if has_normals {
+        for n in &mut normals {
+            let l = n.norm();
+            if l.is_finite() && l > 0.0 {
+                *n /= l;
+            } else {
+                *n = V3::zeros();
+            }
+        }
+        mesh.normals = Some(normals);
+    }
+    Ok(mesh)
+}
+
+/// A PLY header: the body's encoding, its elements, how many lines it took, and where
+/// the body starts.
+struct PlyHeader {
+    encoding: PlyEncoding,
+    elements: Vec<Element>,
+    lines: usize,
+    body_start: usize,
+}
+
+/// Reads the ascii header lines up to `end_header`.
+fn read_ply_header(path: &str, bytes: &[u8]) -> Result<PlyHeader, FileError> {
     let mut pos = 0usize;
     let mut line_no = 0usize;
     let mut next_line = |pos: &mut usize| -> Option<String> {
@@ -266,134 +378,46 @@ pub fn read_ply_bytes(path: &str, bytes: &[u8]) -> Result<Mesh, FileError> {
         }
     }
     let encoding = encoding.ok_or_else(|| content_err(path, "header has no 'format' line"))?;
-    let body = &bytes[pos..];
-    let mut rows: Box<dyn RowSource> = match encoding {
-        PlyEncoding::Ascii => Box::new(AsciiRows::new(body, header_lines)),
-        PlyEncoding::BinaryLittleEndian => Box::new(BinaryRows { body, pos: 0 }),
-    };
+    Ok(PlyHeader {
+        encoding,
+        elements,
+        lines: header_lines,
+        body_start: pos,
+    })
+}
 
-    let mut mesh = Mesh::default();
-    let mut normals: Vec<V3> = Vec::new();
-    let mut has_normals = false;
-    let mut seen_vertex = false;
-    for el in &elements {
-        let is_vertex = el.name == "vertex";
-        let is_face = el.name == "face";
-        let col = |n: &str| {
-            el.props
-                .iter()
-                .position(|p| matches!(p, Property::Scalar { name, .. } if name == n))
-        };
-        let (cx, cy, cz) = (col("x"), col("y"), col("z"));
-        let (cnx, cny, cnz) = (col("nx"), col("ny"), col("nz"));
-        let face_list = el.props.iter().position(|p| {
-            matches!(p, Property::List { name, .. } if name == "vertex_indices" || name == "vertex_index")
-        });
-        if is_vertex {
-            if cx.is_none() || cy.is_none() || cz.is_none() {
-                return Err(content_err(
-                    path,
-                    "element 'vertex' lacks an x, y or z property",
-                ));
-            }
-            seen_vertex = true;
-            has_normals = cnx.is_some() && cny.is_some() && cnz.is_some();
-            mesh.vertices.reserve(el.count.min(1 << 24));
-        }
-        if is_face && face_list.is_none() {
-            return Err(content_err(
-                path,
-                "element 'face' lacks a vertex_indices list",
-            ));
-        }
-        let mut scalars = vec![0.0f64; el.props.len()];
-        let mut list: Vec<f64> = Vec::new();
-        for row in 0..el.count {
-            let what = || format!("element '{}' row {}", el.name, row);
-            rows.start_row()
-                .map_err(|m| content_err(path, format!("{}: {m}", what())))?;
-            for (k, p) in el.props.iter().enumerate() {
-                match p {
-                    Property::Scalar { ty, .. } => {
-                        scalars[k] = rows
-                            .value(*ty)
-                            .map_err(|m| content_err(path, format!("{}: {m}", what())))?;
-                    }
-                    Property::List { count, item, .. } => {
-                        let n = rows
-                            .value(*count)
-                            .map_err(|m| content_err(path, format!("{}: {m}", what())))?;
-                        if !(0.0..=1_000_000.0).contains(&n) || n.fract() != 0.0 {
-                            return Err(content_err(
-                                path,
-                                format!("{}: bad list length {n}", what()),
-                            ));
-                        }
-                        let keep = Some(k) == face_list;
-                        if keep {
-                            list.clear();
-                        }
-                        for _ in 0..n as usize {
-                            let v = rows
-                                .value(*item)
-                                .map_err(|m| content_err(path, format!("{}: {m}", what())))?;
-                            if keep {
-                                list.push(v);
-                            }
-                        }
+/// One row of `el`: its scalar properties into `scalars` (by property index), the
+/// list property `keep_list` into `list` (other lists are read past).
+fn read_row(
+    rows: &mut dyn RowSource,
+    el: &Element,
+    keep_list: Option<usize>,
+    scalars: &mut [f64],
+    list: &mut Vec<f64>,
+) -> Result<(), String> {
+    rows.start_row()?;
+    for (k, p) in el.props.iter().enumerate() {
+        match p {
+            Property::Scalar { ty, .. } => scalars[k] = rows.value(*ty)?,
+            Property::List { count, item, .. } => {
+                let n = rows.value(*count)?;
+                if !(0.0..=1_000_000.0).contains(&n) || n.fract() != 0.0 {
+                    return Err(format!("bad list length {n}"));
+                }
+                let keep = Some(k) == keep_list;
+                if keep {
+                    list.clear();
+                }
+                for _ in 0..n as usize {
+                    let v = rows.value(*item)?;
+                    if keep {
+                        list.push(v);
                     }
                 }
             }
-            rows.end_row()
-                .map_err(|m| content_err(path, format!("{}: {m}", what())))?;
-            if is_vertex {
-                let v = V3::new(
-                    scalars[cx.unwrap()],
-                    scalars[cy.unwrap()],
-                    scalars[cz.unwrap()],
-                );
-                if !v.iter().all(|c| c.is_finite()) {
-                    return Err(content_err(
-                        path,
-                        format!("vertex {row}: non-finite coordinate"),
-                    ));
-                }
-                mesh.vertices.push(v);
-                if has_normals {
-                    normals.push(V3::new(
-                        scalars[cnx.unwrap()],
-                        scalars[cny.unwrap()],
-                        scalars[cnz.unwrap()],
-                    ));
-                }
-            } else if is_face {
-                if list.len() < 3 {
-                    return Err(content_err(
-                        path,
-                        format!("face {row}: fewer than 3 vertices"),
-                    ));
-                }
-                push_polygon(&mut mesh.triangles, &list, mesh.vertices.len(), seen_vertex)
-                    .map_err(|m| content_err(path, format!("face {row}: {m}")))?;
-            }
         }
     }
-    rows.finish().map_err(|m| content_err(path, m))?;
-    if !seen_vertex {
-        return Err(content_err(path, "no 'vertex' element"));
-    }
-    if has_normals {
-        for n in &mut normals {
-            let l = n.norm();
-            if l.is_finite() && l > 0.0 {
-                *n /= l;
-            } else {
-                *n = V3::zeros();
-            }
-        }
-        mesh.normals = Some(normals);
-    }
-    Ok(mesh)
+    rows.end_row()
 }
 
 /// Fan-triangulates one polygon of vertex indices, checking each index against `nv`.
