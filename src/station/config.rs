@@ -398,149 +398,11 @@ impl StationConfig {
         let daemon: DaemonSection = read!("daemon", DaemonSection).unwrap_or_default();
         let journal: JournalSection = read!("journal", JournalSection).unwrap_or_default();
         let worker: WorkerSection = read!("worker", WorkerSection).unwrap_or_default();
-        if let Some(u) = &journal.url {
-            if !(u.starts_with("postgres://") || u.starts_with("postgresql://")) {
-                add(
-                    at("journal"),
-                    "[journal]: url must start with postgres:// or postgresql://".into(),
-                );
-            } else if let Err(e) = u.parse::<postgres::Config>() {
-                // the driver's own reading, so what passes here connects the same way;
-                // the URL is not quoted: it may hold a password
-                add(
-                    at("journal"),
-                    format!("[journal]: url is not a PostgreSQL connection URL: {e}"),
-                );
-            }
-        }
         if doc.get_ref().is_empty() {
             add(
                 None,
                 "the station file is empty: it needs at least [station], and [template] and [rig] to process captures (see config/station.example.toml)".into(),
             );
-        }
-        if station.data.as_os_str().is_empty() {
-            add(
-                at("station"),
-                "[station]: data = \"\" names no folder; give the folder for captures/, incoming/ and results/ (\".\" for the station file's own)".into(),
-            );
-        }
-        if let Some(c) = &capture
-            && !(c.options.max_skew_ms >= 0.0 && c.options.max_skew_ms <= 10_000.0)
-        {
-            add(
-                at("capture"),
-                format!(
-                    "[capture]: max_skew_ms = {} is not 0 to 10000",
-                    c.options.max_skew_ms
-                ),
-            );
-        }
-        let within = |v: f64, lo: f64, hi: f64| (lo..=hi).contains(&v);
-        if !within(journal.lease_s, 2.0, 3600.0) || !within(journal.poll_s, 0.1, 3600.0) {
-            add(
-                at("journal"),
-                format!(
-                    "[journal]: lease_s = {} must be 2 to 3600 and poll_s = {} 0.1 to 3600",
-                    journal.lease_s, journal.poll_s
-                ),
-            );
-        }
-        if worker.jobs > 256 {
-            add(at("worker"), "[worker]: jobs must be at most 256".into());
-        }
-
-        // what the types cannot check
-        if let Err(e) = conform.validate() {
-            add(at("conform"), format!("[conform]: {e}"));
-        }
-        if let Some(t) = &template
-            && let Err(e) = t.check()
-        {
-            add(at("template"), format!("[template]: {e}"));
-        }
-        if let Err(e) = crate::paths::check_plain_name("station name", &station.name) {
-            add(at("station"), format!("[station]: {e}"));
-        }
-        let mut ids = std::collections::BTreeSet::new();
-        for c in &cameras {
-            if let Err(e) = c.check() {
-                add(at("cameras"), format!("[[cameras]]: {e}"));
-            }
-            if !ids.insert(&c.id) {
-                add(
-                    at("cameras"),
-                    format!("[[cameras]]: two cameras have the id '{}'", c.id),
-                );
-            }
-        }
-        if capture.is_some() && cameras.is_empty() {
-            add(at("capture"), "[[cameras]]: no camera is configured".into());
-        }
-        if !(daemon.rescan_s >= 0.5 && daemon.rescan_s <= 86_400.0) {
-            add(
-                at("daemon"),
-                format!(
-                    "[daemon]: rescan_s = {} is not 0.5 to 86400",
-                    daemon.rescan_s
-                ),
-            );
-        }
-        if !(daemon.job_timeout_s >= 1.0 && daemon.job_timeout_s <= 86_400.0) {
-            add(
-                at("daemon"),
-                format!(
-                    "[daemon]: job_timeout_s = {} is not 1 to 86400",
-                    daemon.job_timeout_s
-                ),
-            );
-        }
-        if !(0.0..=3600.0).contains(&daemon.drain_s) {
-            add(
-                at("daemon"),
-                format!("[daemon]: drain_s = {} is not 0 to 3600", daemon.drain_s),
-            );
-        }
-        if !(1..=100).contains(&daemon.max_attempts) || daemon.workers > 256 {
-            add(
-                at("daemon"),
-                "[daemon]: max_attempts must be 1 to 100, workers at most 256".into(),
-            );
-        }
-        match daemon.listen.parse::<std::net::SocketAddr>() {
-            Err(_) => add(
-                at("daemon"),
-                format!(
-                    "[daemon]: listen = '{}' is not an address:port",
-                    daemon.listen
-                ),
-            ),
-            Ok(a)
-                if !a.ip().is_loopback()
-                    && daemon
-                        .token
-                        .as_deref()
-                        .unwrap_or("")
-                        .chars()
-                        .filter(|c| !c.is_whitespace())
-                        .count()
-                        < 16 =>
-            {
-                add(
-                    at("daemon"),
-                    format!(
-                        "[daemon]: listening on {a}, beyond this machine, needs a token of 16 or more characters other than spaces"
-                    ),
-                )
-            }
-            Ok(_) => {}
-        }
-        if !problems.is_empty() {
-            problems.sort_by_key(|p| p.line.unwrap_or(usize::MAX));
-            return Err(ConfigError {
-                path: path.display().to_string(),
-                problems,
-            });
         }
         let mut cfg = StationConfig {
             // absolute, so paths resolved against its folder are absolute too
@@ -558,8 +420,72 @@ impl StationConfig {
             journal,
             worker,
         };
+        for (key, msg) in cfg.problems() {
+            add(at(key), msg);
+        }
+        if !problems.is_empty() {
+            problems.sort_by_key(|p| p.line.unwrap_or(usize::MAX));
+            return Err(ConfigError {
+                path: path.display().to_string(),
+                problems,
+            });
+        }
         cfg.resolve_paths();
         Ok(cfg)
+    }
+
+    /// What the types cannot check, each with the section whose header line it is
+    /// reported at.
+    fn problems(&self) -> Vec<(&'static str, String)> {
+        let mut out: Vec<(&'static str, String)> = Vec::new();
+        if self.station.data.as_os_str().is_empty() {
+            let msg = "[station]: data = \"\" names no folder; give the folder for captures/, \
+                       incoming/ and results/ (\".\" for the station file's own)";
+            out.push(("station", msg.into()));
+        }
+        if let Some(c) = &self.capture
+            && !(c.options.max_skew_ms >= 0.0 && c.options.max_skew_ms <= 10_000.0)
+        {
+            out.push((
+                "capture",
+                format!(
+                    "[capture]: max_skew_ms = {} is not 0 to 10000",
+                    c.options.max_skew_ms
+                ),
+            ));
+        }
+        if self.worker.jobs > 256 {
+            out.push(("worker", "[worker]: jobs must be at most 256".into()));
+        }
+        if let Err(e) = self.conform.validate() {
+            out.push(("conform", format!("[conform]: {e}")));
+        }
+        if let Some(t) = &self.template
+            && let Err(e) = t.check()
+        {
+            out.push(("template", format!("[template]: {e}")));
+        }
+        if let Err(e) = crate::paths::check_plain_name("station name", &self.station.name) {
+            out.push(("station", format!("[station]: {e}")));
+        }
+        let mut ids = std::collections::BTreeSet::new();
+        for c in &self.cameras {
+            if let Err(e) = c.check() {
+                out.push(("cameras", format!("[[cameras]]: {e}")));
+            }
+            if !ids.insert(&c.id) {
+                out.push((
+                    "cameras",
+                    format!("[[cameras]]: two cameras have the id '{}'", c.id),
+                ));
+            }
+        }
+        if self.capture.is_some() && self.cameras.is_empty() {
+            out.push(("capture", "[[cameras]]: no camera is configured".into()));
+        }
+        out.extend(self.journal.problems().into_iter().map(|m| ("journal", m)));
+        out.extend(self.daemon.problems().into_iter().map(|m| ("daemon", m)));
+        out
     }
 
     /// The config as it may be printed: the journal URL's password and the API token
@@ -637,5 +563,80 @@ impl StationConfig {
             trigger: self.trigger.clone(),
             cameras: self.cameras.clone(),
         })
+    }
+}
+
+impl JournalSection {
+    fn problems(&self) -> Vec<String> {
+        let mut out = Vec::new();
+        if let Some(u) = &self.url {
+            if !(u.starts_with("postgres://") || u.starts_with("postgresql://")) {
+                out.push("[journal]: url must start with postgres:// or postgresql://".into());
+            } else if let Err(e) = u.parse::<postgres::Config>() {
+                // the driver's own reading, so what passes here connects the same way;
+                // the URL is not quoted: it may hold a password
+                out.push(format!(
+                    "[journal]: url is not a PostgreSQL connection URL: {e}"
+                ));
+            }
+        }
+        let within = |v: f64, lo: f64, hi: f64| (lo..=hi).contains(&v);
+        if !within(self.lease_s, 2.0, 3600.0) || !within(self.poll_s, 0.1, 3600.0) {
+            out.push(format!(
+                "[journal]: lease_s = {} must be 2 to 3600 and poll_s = {} 0.1 to 3600",
+                self.lease_s, self.poll_s
+            ));
+        }
+        out
+    }
+}
+
+impl DaemonSection {
+    fn problems(&self) -> Vec<String> {
+        let mut out = Vec::new();
+        if !(self.rescan_s >= 0.5 && self.rescan_s <= 86_400.0) {
+            out.push(format!(
+                "[daemon]: rescan_s = {} is not 0.5 to 86400",
+                self.rescan_s
+            ));
+        }
+        if !(self.job_timeout_s >= 1.0 && self.job_timeout_s <= 86_400.0) {
+            out.push(format!(
+                "[daemon]: job_timeout_s = {} is not 1 to 86400",
+                self.job_timeout_s
+            ));
+        }
+        if !(0.0..=3600.0).contains(&self.drain_s) {
+            out.push(format!(
+                "[daemon]: drain_s = {} is not 0 to 3600",
+                self.drain_s
+            ));
+        }
+        if !(1..=100).contains(&self.max_attempts) || self.workers > 256 {
+            out.push("[daemon]: max_attempts must be 1 to 100, workers at most 256".into());
+        }
+        match self.listen.parse::<std::net::SocketAddr>() {
+            Err(_) => out.push(format!(
+                "[daemon]: listen = '{}' is not an address:port",
+                self.listen
+            )),
+            Ok(a)
+                if !a.ip().is_loopback()
+                    && self
+                        .token
+                        .as_deref()
+                        .unwrap_or("")
+                        .chars()
+                        .filter(|c| !c.is_whitespace())
+                        .count()
+                        < 16 =>
+            {
+                out.push(format!(
+                    "[daemon]: listening on {a}, beyond this machine, needs a token of 16 or more characters other than spaces"
+                ))
+            }
+            Ok(_) => {}
+        }
+        out
     }
 }
