@@ -497,179 +497,151 @@ impl Problem<'_> {
             free_bones: self.params.free_bones.clone(),
             shapes: shapes.min(self.params.shapes),
         };
-        let (prig, surface, samples, s, rig) =
-            (&self.prig, self.surface, &self.samples, &self.s, self.rig);
-        let (area_w, scan_w, diag) = (&self.area_w, self.scan_w, self.diag);
+        let (s, diag) = (&self.s, self.diag);
         let np = params.count();
-        let moved_by = prig.moved_by(params);
+        let moved_by = self.prig.moved_by(params);
         let iters = iterations.max(1);
         for it in 0..iters {
             let t = phase.0 + (phase.1 - phase.0) * it as f64 / (iters - 1).max(1) as f64;
             let reach = diag * (s.reach.0 + (s.reach.1 - s.reach.0) * t);
             let sigma = diag * (s.robust.0 + (s.robust.1 - s.robust.0) * t);
-            let (x, n) = prig.pose(st, true);
+            let (x, n) = self.prig.pose(st, true);
             let centre = x.iter().sum::<V3>() / x.len() as f64;
-            // rows: (proxy, scan point, scan normal, weight)
-            let mut rows: Vec<(usize, V3, V3, f64)> = Vec::new();
-            let geman = |r: f64| {
-                let u = r / sigma;
-                1.0 / (1.0 + u * u).powi(2)
-            };
+            let rows = self.rows(&x, &n, reach, sigma, targets);
+            if rows.len() < np {
+                break;
+            }
+            let cols = self.jacobian(params, &moved_by, st, &x, &centre);
             let p2p = if targets.is_some() {
                 1.0
             } else {
                 s.point_to_point
             };
-            let ts: Vec<Option<(usize, V3, V3, f64)>> = (0..x.len())
-                .into_par_iter()
-                .map(|i| {
-                    if let Some(t) = targets {
-                        return Some((i, t[i], n[i], area_w[i]));
-                    }
-                    let (q, _) = surface.nearest_point_within(&x[i], reach)?;
-                    let m = surface.normal(q);
-                    if n[i].dot(&m) < 0.5 {
-                        return None;
-                    }
-                    let r = m.dot(&(x[i] - surface.points[q]));
-                    Some((i, surface.points[q], m, area_w[i] * geman(r)))
-                })
-                .collect();
-            rows.extend(ts.into_iter().flatten());
-            if s.scan_weight > 0.0 && targets.is_none() {
-                let arr: Vec<[f64; 3]> = x.iter().map(|p| [p.x, p.y, p.z]).collect();
-                let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&arr);
-                let st_rows: Vec<Option<(usize, V3, V3, f64)>> = samples
-                    .par_iter()
-                    .map(|&k| {
-                        let q = surface.points[k];
-                        let hit = tree.nearest_one::<SquaredEuclidean>(&[q.x, q.y, q.z]);
-                        let i = hit.item as usize;
-                        let m = surface.normal(k);
-                        if hit.distance.sqrt() > reach || n[i].dot(&m) < 0.5 {
-                            return None;
-                        }
-                        let r = m.dot(&(x[i] - q));
-                        Some((i, q, m, scan_w * geman(r)))
-                    })
-                    .collect();
-                rows.extend(st_rows.into_iter().flatten());
-            }
-            if rows.len() < np {
-                break;
-            }
-            // numeric Jacobian of every proxy's position, one column per parameter
-            let h = 1e-5;
-            let cols: Vec<Vec<V3>> = (0..np)
-                .into_par_iter()
-                .map(|p| {
-                    let mut d = vec![0.0; np];
-                    d[p] = h;
-                    let moved = params.apply(st, &d, &centre, rig);
-                    let xf = prig.transforms(&moved);
-                    let mut col = vec![V3::zeros(); x.len()];
-                    for &i in &moved_by[p] {
-                        let q = prig.pose_one(&moved, &xf, i, false).0;
-                        col[i] = (moved.placement.apply(&q) - x[i]) / h;
-                    }
-                    col
-                })
-                .collect();
-            // every row of a proxy shares its Jacobian J (3 x np): its rows add
-            // J' A J and J' b, with A and b summed over them (plane: w m m', point: w I)
-            let mut a3 = vec![nalgebra::Matrix3::<f64>::zeros(); x.len()];
-            let mut b3 = vec![V3::zeros(); x.len()];
-            for &(i, q, m, w) in &rows {
-                let e = (x[i] - q) / diag;
-                let plane = m * m.transpose() * w;
-                a3[i] += plane + nalgebra::Matrix3::identity() * (w * p2p);
-                b3[i] += plane * e + e * (w * p2p);
-            }
-            // summed per thread over its share of the proxies (upper triangle, row
-            // major), then added up
-            let zero = || (vec![0.0; np * np], vec![0.0; np]);
-            let (upper, jtr) = (0..x.len())
-                .into_par_iter()
-                .filter(|&i| a3[i] != nalgebra::Matrix3::zeros())
-                .fold(
-                    || (zero(), Vec::with_capacity(np), Vec::with_capacity(np)),
-                    |((mut m, mut r), mut nz, mut jn): Partial, i| {
-                        nz.clear();
-                        jn.clear();
-                        for (p, col) in cols.iter().enumerate() {
-                            let c = col[i];
-                            if c != V3::zeros() {
-                                nz.push(p);
-                                jn.push(c / diag);
-                            }
-                        }
-                        for (u, &pa) in nz.iter().enumerate() {
-                            r[pa] += jn[u].dot(&b3[i]);
-                            let aj = a3[i] * jn[u];
-                            for (v, &pb) in nz.iter().enumerate().skip(u) {
-                                m[pa * np + pb] += jn[v].dot(&aj);
-                            }
-                        }
-                        ((m, r), nz, jn)
-                    },
-                )
-                .map(|(sums, _, _)| sums)
-                .reduce(zero, |(mut m, mut r), (m2, r2)| {
-                    m.iter_mut().zip(&m2).for_each(|(a, b)| *a += b);
-                    r.iter_mut().zip(&r2).for_each(|(a, b)| *a += b);
-                    (m, r)
-                });
-            let mut jtj = DMatrix::<f64>::from_fn(np, np, |a, b| upper[a * np + b]);
-            let mut jtr = DVector::<f64>::from_vec(jtr);
-            for a in 0..np {
-                for b in 0..a {
-                    jtj[(a, b)] = jtj[(b, a)];
-                }
-            }
-            // priors: each joint towards its rest turn, each factor towards 1
+            let (mut jtj, mut jtr) = normal_equations(np, &x, &rows, &cols, p2p, diag);
             let norm = rows.iter().map(|r| r.3).sum::<f64>();
-            for (k, &b) in params.free_bones.iter().enumerate() {
-                let v = rotation_vector(&st.pose.turns[b]);
-                for c in 0..3 {
-                    let a = 7 + 3 * k + c;
-                    jtj[(a, a)] += s.pose_prior * norm;
-                    jtr[a] += s.pose_prior * norm * v[c];
-                }
-            }
-            let base = 7 + 3 * params.free_bones.len();
-            for k in 0..params.shapes {
-                let a = base + k;
-                let prior = if k < self.base_shapes {
-                    s.shape_prior
-                } else {
-                    s.bone_prior
-                };
-                jtj[(a, a)] += prior * norm;
-                jtr[a] += prior * norm * (st.pose.factors[k] - 1.0);
-            }
-            let damping = 1e-3;
-            for a in 0..np {
-                jtj[(a, a)] += damping * jtj[(a, a)].max(1e-12);
-            }
-            let Some(chol) = jtj.cholesky() else {
+            self.add_priors(params, st, norm, &mut jtj, &mut jtr);
+            let Some(d) = damped_step(params, jtj, jtr, diag) else {
                 break;
             };
-            let d = chol.solve(&(-jtr));
-            if !d.iter().all(|x| x.is_finite()) {
-                break;
+            *st = params.apply(st, &d, &centre, self.rig);
+        }
+    }
+
+    /// One step's data rows (proxy, point, normal, weight): each proxy's nearest scan
+    /// point within `reach` facing its way (or its target), and with a scan weight,
+    /// each scan sample's nearest proxy; Geman-McClure weights of scale `sigma`.
+    fn rows(
+        &self,
+        x: &[V3],
+        n: &[V3],
+        reach: f64,
+        sigma: f64,
+        targets: Option<&[V3]>,
+    ) -> Vec<(usize, V3, V3, f64)> {
+        let (surface, samples, s) = (self.surface, &self.samples, &self.s);
+        let (area_w, scan_w) = (&self.area_w, self.scan_w);
+        let mut rows: Vec<(usize, V3, V3, f64)> = Vec::new();
+        let geman = |r: f64| {
+            let u = r / sigma;
+            1.0 / (1.0 + u * u).powi(2)
+        };
+        let ts: Vec<Option<(usize, V3, V3, f64)>> = (0..x.len())
+            .into_par_iter()
+            .map(|i| {
+                if let Some(t) = targets {
+                    return Some((i, t[i], n[i], area_w[i]));
+                }
+                let (q, _) = surface.nearest_point_within(&x[i], reach)?;
+                let m = surface.normal(q);
+                if n[i].dot(&m) < 0.5 {
+                    return None;
+                }
+                let r = m.dot(&(x[i] - surface.points[q]));
+                Some((i, surface.points[q], m, area_w[i] * geman(r)))
+            })
+            .collect();
+        rows.extend(ts.into_iter().flatten());
+        if s.scan_weight > 0.0 && targets.is_none() {
+            let arr: Vec<[f64; 3]> = x.iter().map(|p| [p.x, p.y, p.z]).collect();
+            let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&arr);
+            let st_rows: Vec<Option<(usize, V3, V3, f64)>> = samples
+                .par_iter()
+                .map(|&k| {
+                    let q = surface.points[k];
+                    let hit = tree.nearest_one::<SquaredEuclidean>(&[q.x, q.y, q.z]);
+                    let i = hit.item as usize;
+                    let m = surface.normal(k);
+                    if hit.distance.sqrt() > reach || n[i].dot(&m) < 0.5 {
+                        return None;
+                    }
+                    let r = m.dot(&(x[i] - q));
+                    Some((i, q, m, scan_w * geman(r)))
+                })
+                .collect();
+            rows.extend(st_rows.into_iter().flatten());
+        }
+        rows
+    }
+
+    /// Numeric Jacobian of every proxy's position (`x` in `st`), one column per
+    /// parameter; only the proxies a parameter moves are posed.
+    fn jacobian(
+        &self,
+        params: &Params,
+        moved_by: &[Vec<usize>],
+        st: &State,
+        x: &[V3],
+        centre: &V3,
+    ) -> Vec<Vec<V3>> {
+        let (prig, rig) = (&self.prig, self.rig);
+        let np = params.count();
+        let h = 1e-5;
+        (0..np)
+            .into_par_iter()
+            .map(|p| {
+                let mut d = vec![0.0; np];
+                d[p] = h;
+                let moved = params.apply(st, &d, centre, rig);
+                let xf = prig.transforms(&moved);
+                let mut col = vec![V3::zeros(); x.len()];
+                for &i in &moved_by[p] {
+                    let q = prig.pose_one(&moved, &xf, i, false).0;
+                    col[i] = (moved.placement.apply(&q) - x[i]) / h;
+                }
+                col
+            })
+            .collect()
+    }
+
+    /// The priors: each joint towards its rest turn, each factor towards 1, weighted by
+    /// the rows' total weight `norm`.
+    fn add_priors(
+        &self,
+        params: &Params,
+        st: &State,
+        norm: f64,
+        jtj: &mut DMatrix<f64>,
+        jtr: &mut DVector<f64>,
+    ) {
+        let s = &self.s;
+        for (k, &b) in params.free_bones.iter().enumerate() {
+            let v = rotation_vector(&st.pose.turns[b]);
+            for c in 0..3 {
+                let a = 7 + 3 * k + c;
+                jtj[(a, a)] += s.pose_prior * norm;
+                jtr[a] += s.pose_prior * norm * v[c];
             }
-            // a step of more than 20 degrees or a tenth of the diagonal is cut down
-            let largest_turn = d.iter().take(3).map(|x| x.abs()).fold(0.0, f64::max).max(
-                (0..params.free_bones.len())
-                    .map(|k| V3::new(d[7 + 3 * k], d[8 + 3 * k], d[9 + 3 * k]).norm())
-                    .fold(0.0, f64::max),
-            );
-            let shift = V3::new(d[3], d[4], d[5]).norm() / diag;
-            let cut = (0.35 / largest_turn.max(1e-12))
-                .min(0.1 / shift.max(1e-12))
-                .min(1.0);
-            let d: Vec<f64> = d.iter().map(|x| x * cut).collect();
-            *st = params.apply(st, &d, &centre, rig);
+        }
+        let base = 7 + 3 * params.free_bones.len();
+        for k in 0..params.shapes {
+            let a = base + k;
+            let prior = if k < self.base_shapes {
+                s.shape_prior
+            } else {
+                s.bone_prior
+            };
+            jtj[(a, a)] += prior * norm;
+            jtr[a] += prior * norm * (st.pose.factors[k] - 1.0);
         }
     }
 
@@ -725,6 +697,100 @@ impl Problem<'_> {
             }
         }
     }
+}
+
+/// The normal equations J'AJ and J'b of the `rows` (point-to-plane, plus
+/// point-to-point at weight `p2p`), relative to `diag`. Every row of a proxy shares its
+/// Jacobian J (3 x np): its rows add J' A J and J' b, with A and b summed over them
+/// (plane: w m m', point: w I).
+fn normal_equations(
+    np: usize,
+    x: &[V3],
+    rows: &[(usize, V3, V3, f64)],
+    cols: &[Vec<V3>],
+    p2p: f64,
+    diag: f64,
+) -> (DMatrix<f64>, DVector<f64>) {
+    let mut a3 = vec![nalgebra::Matrix3::<f64>::zeros(); x.len()];
+    let mut b3 = vec![V3::zeros(); x.len()];
+    for &(i, q, m, w) in rows {
+        let e = (x[i] - q) / diag;
+        let plane = m * m.transpose() * w;
+        a3[i] += plane + nalgebra::Matrix3::identity() * (w * p2p);
+        b3[i] += plane * e + e * (w * p2p);
+    }
+    // summed per thread over its share of the proxies (upper triangle, row major),
+    // then added up
+    let zero = || (vec![0.0; np * np], vec![0.0; np]);
+    let (upper, jtr) = (0..x.len())
+        .into_par_iter()
+        .filter(|&i| a3[i] != nalgebra::Matrix3::zeros())
+        .fold(
+            || (zero(), Vec::with_capacity(np), Vec::with_capacity(np)),
+            |((mut m, mut r), mut nz, mut jn): Partial, i| {
+                nz.clear();
+                jn.clear();
+                for (p, col) in cols.iter().enumerate() {
+                    let c = col[i];
+                    if c != V3::zeros() {
+                        nz.push(p);
+                        jn.push(c / diag);
+                    }
+                }
+                for (u, &pa) in nz.iter().enumerate() {
+                    r[pa] += jn[u].dot(&b3[i]);
+                    let aj = a3[i] * jn[u];
+                    for (v, &pb) in nz.iter().enumerate().skip(u) {
+                        m[pa * np + pb] += jn[v].dot(&aj);
+                    }
+                }
+                ((m, r), nz, jn)
+            },
+        )
+        .map(|(sums, _, _)| sums)
+        .reduce(zero, |(mut m, mut r), (m2, r2)| {
+            m.iter_mut().zip(&m2).for_each(|(a, b)| *a += b);
+            r.iter_mut().zip(&r2).for_each(|(a, b)| *a += b);
+            (m, r)
+        });
+    let mut jtj = DMatrix::<f64>::from_fn(np, np, |a, b| upper[a * np + b]);
+    let jtr = DVector::<f64>::from_vec(jtr);
+    for a in 0..np {
+        for b in 0..a {
+            jtj[(a, b)] = jtj[(b, a)];
+        }
+    }
+    (jtj, jtr)
+}
+
+/// The damped Gauss-Newton step of the normal equations; a step of more than 20
+/// degrees or a tenth of the diagonal is cut down. `None` when it cannot be solved.
+fn damped_step(
+    params: &Params,
+    mut jtj: DMatrix<f64>,
+    jtr: DVector<f64>,
+    diag: f64,
+) -> Option<Vec<f64>> {
+    let np = params.count();
+    let damping = 1e-3;
+    for a in 0..np {
+        jtj[(a, a)] += damping * jtj[(a, a)].max(1e-12);
+    }
+    let chol = jtj.cholesky()?;
+    let d = chol.solve(&(-jtr));
+    if !d.iter().all(|x| x.is_finite()) {
+        return None;
+    }
+    let largest_turn = d.iter().take(3).map(|x| x.abs()).fold(0.0, f64::max).max(
+        (0..params.free_bones.len())
+            .map(|k| V3::new(d[7 + 3 * k], d[8 + 3 * k], d[9 + 3 * k]).norm())
+            .fold(0.0, f64::max),
+    );
+    let shift = V3::new(d[3], d[4], d[5]).norm() / diag;
+    let cut = (0.35 / largest_turn.max(1e-12))
+        .min(0.1 / shift.max(1e-12))
+        .min(1.0);
+    Some(d.iter().map(|x| x * cut).collect())
 }
 
 /// A cost for comparing poses of one limb chain far apart: distances both ways, each

@@ -193,24 +193,7 @@ pub fn run(
 ) -> (Vec<V3>, Vec<UnitQuaternion<f64>>) {
     let nn = graph.rest.len();
     let n = rest.len();
-    // start: each node where the global mapping put its vertex, rotations fitted
-    let mut def = Deformation {
-        pos: vec![V3::zeros(); nn],
-        rot: vec![UnitQuaternion::identity(); nn],
-    };
-    {
-        let mut acc = vec![(V3::zeros(), 0.0); nn];
-        for v in 0..n {
-            for &(k, w) in &graph.blend[v] {
-                acc[k as usize].0 += (x0[v] - rest[v] + graph.rest[k as usize]) * w;
-                acc[k as usize].1 += w;
-            }
-        }
-        for (k, (p, w)) in acc.into_iter().enumerate() {
-            def.pos[k] = if w > 0.0 { p / w } else { graph.rest[k] };
-        }
-    }
-    fit_node_rotations(graph, &mut def);
+    let mut def = start(graph, rest, x0);
     let mut x = graph.apply(&def, rest);
     let mut system = NodeSystem::new(graph);
     for it in 0..s.iterations {
@@ -226,53 +209,137 @@ pub fn run(
                 * diag,
             min_normal_cos: s.min_normal_cos,
         };
-        let normals = vertex_normals(&x, tris);
         // two samples a node: more samples per matching were measured to help less than
         // more matchings for the same time (articulated, no landmarks: 4,000 samples x 30
         // iterations 0.90%, 600 x 90 0.71%; posed pig 0.52% -> 0.39%)
         let stride = (n / (2 * nn)).max(1);
-        let matches: Vec<_> = (0..n)
-            .into_par_iter()
-            .map(|v| {
-                if v % stride == 0 {
-                    scan.query(&x[v], &normals[v], &lim)
-                } else {
-                    None
-                }
-            })
-            .collect();
+        let terms = data_terms(
+            scan,
+            &x,
+            tris,
+            stride,
+            &lim,
+            (landmark_weight, landmark_target),
+            s,
+        );
         let sampled = n.div_ceil(stride);
-        // The data terms of this matching: (vertex, weight, target).
-        let mut terms: Vec<(usize, f64, V3)> = Vec::new();
-        for v in 0..n {
-            if let Some(m) = &matches[v] {
-                let foot = x[v] - m.normal * m.normal.dot(&(x[v] - m.point));
-                terms.push((
-                    v,
-                    m.weight,
-                    foot * (1.0 - s.point_to_point) + m.point * s.point_to_point,
-                ));
-            }
-            if landmark_weight[v] > 0.0 {
-                terms.push((v, landmark_weight[v], landmark_target[v]));
-            }
-        }
-        // The other direction: scan samples pull their nearest compatible vertex. Data a
-        // part has moved away from (a lifted leg) still reaches that part this way.
-        if s.scan_to_template > 0.0 {
-            let pulls = scan.pulls(&x, &normals, sampled, &lim);
-            let w = s.scan_to_template * (sampled as f64 / pulls.len().max(1) as f64).min(4.0);
-            for (v, p, sn) in pulls {
-                let foot = x[v] - sn * sn.dot(&(x[v] - p));
-                terms.push((v, w, foot * (1.0 - s.point_to_point) + p * s.point_to_point));
-            }
-        }
+        let springs = Springs {
+            graph,
+            eps,
+            per_node: sampled as f64 / nn as f64,
+        };
         // Global step: node positions with rotations fixed. Each vertex is linear in the
         // node positions, x_v = sum_k w_vk p_k + c_v(R), so the system matrix does not
         // depend on the rotations: one factorisation serves every local-global round.
-        let per_node = sampled as f64 / nn as f64;
+        springs.assemble(&mut system, &terms);
+        let Some(ch) = system.factor() else {
+            continue;
+        };
+        // one local-global round per matching: more rounds on the same matches were
+        // measured to change nothing (0.900% -> 0.906% on the articulated case)
+        let b = springs.right_hand_sides(&def, rest, &terms);
+        let sol = b.map(|rhs| ch.solve(&rhs));
+        for (k, p) in def.pos.iter_mut().enumerate() {
+            *p = V3::new(sol[0][k], sol[1][k], sol[2][k]);
+        }
+        fit_node_rotations(graph, &mut def);
+        x = graph.apply(&def, rest);
+    }
+    (x, vertex_rotations(graph, &def, n))
+}
+
+/// The start: each node where the global mapping `x0` put its vertices, rotations
+/// fitted.
+fn start(graph: &Graph, rest: &[V3], x0: &[V3]) -> Deformation {
+    let nn = graph.rest.len();
+    let mut def = Deformation {
+        pos: vec![V3::zeros(); nn],
+        rot: vec![UnitQuaternion::identity(); nn],
+    };
+    let mut acc = vec![(V3::zeros(), 0.0); nn];
+    for v in 0..rest.len() {
+        for &(k, w) in &graph.blend[v] {
+            acc[k as usize].0 += (x0[v] - rest[v] + graph.rest[k as usize]) * w;
+            acc[k as usize].1 += w;
+        }
+    }
+    for (k, (p, w)) in acc.into_iter().enumerate() {
+        def.pos[k] = if w > 0.0 { p / w } else { graph.rest[k] };
+    }
+    fit_node_rotations(graph, &mut def);
+    def
+}
+
+/// The data terms of one matching, (vertex, weight, target): every `stride`-th vertex
+/// matched onto the scan, the landmarks, and scan samples pulling their nearest
+/// compatible vertex (data a part has moved away from, a lifted leg, still reaches
+/// that part this way).
+fn data_terms(
+    scan: &ScanSurface,
+    x: &[V3],
+    tris: &[[u32; 3]],
+    stride: usize,
+    lim: &MatchLimits,
+    (landmark_weight, landmark_target): (&[f64], &[V3]),
+    s: &CoarseSettings,
+) -> Vec<(usize, f64, V3)> {
+    let n = x.len();
+    let normals = vertex_normals(x, tris);
+    let matches: Vec<_> = (0..n)
+        .into_par_iter()
+        .map(|v| {
+            if v % stride == 0 {
+                scan.query(&x[v], &normals[v], lim)
+            } else {
+                None
+            }
+        })
+        .collect();
+    let sampled = n.div_ceil(stride);
+    let mut terms: Vec<(usize, f64, V3)> = Vec::new();
+    for v in 0..n {
+        if let Some(m) = &matches[v] {
+            let foot = x[v] - m.normal * m.normal.dot(&(x[v] - m.point));
+            terms.push((
+                v,
+                m.weight,
+                foot * (1.0 - s.point_to_point) + m.point * s.point_to_point,
+            ));
+        }
+        if landmark_weight[v] > 0.0 {
+            terms.push((v, landmark_weight[v], landmark_target[v]));
+        }
+    }
+    if s.scan_to_template > 0.0 {
+        let pulls = scan.pulls(x, &normals, sampled, lim);
+        let w = s.scan_to_template * (sampled as f64 / pulls.len().max(1) as f64).min(4.0);
+        for (v, p, sn) in pulls {
+            let foot = x[v] - sn * sn.dot(&(x[v] - p));
+            terms.push((v, w, foot * (1.0 - s.point_to_point) + p * s.point_to_point));
+        }
+    }
+    terms
+}
+
+/// The graph's springs at one matching: sum over node edges
+/// |p_i - p_j - (R_i + R_j)/2 (r_i - r_j)|^2, scaled per node by the vertices it carries
+/// (`per_node` samples a node) so epsilon keeps its meaning.
+struct Springs<'a> {
+    graph: &'a Graph,
+    eps: f64,
+    per_node: f64,
+}
+
+impl Springs<'_> {
+    fn weight(&self, i: usize) -> f64 {
+        self.eps * self.per_node / self.graph.edges[i].len() as f64
+    }
+
+    /// The system matrix of the data `terms` and the springs.
+    fn assemble(&self, system: &mut NodeSystem, terms: &[(usize, f64, V3)]) {
+        let graph = self.graph;
         system.clear();
-        for &(v, weight, _) in &terms {
+        for &(v, weight, _) in terms {
             let bl = &graph.blend[v];
             for &(i, wi) in bl {
                 for &(j, wj) in bl {
@@ -280,67 +347,66 @@ pub fn run(
                 }
             }
         }
-        // graph springs: sum over node edges |p_i - p_j - (R_i + R_j)/2 (r_i - r_j)|^2,
-        // scaled per node by the vertices it carries so epsilon keeps its meaning
-        let spring = |i: usize| eps * per_node / graph.edges[i].len() as f64;
-        for i in 0..nn {
+        for i in 0..graph.rest.len() {
             for &j in &graph.edges[i] {
-                let (j, w) = (j as usize, spring(i));
+                let (j, w) = (j as usize, self.weight(i));
                 system.add(i, i, w);
                 system.add(j, j, w);
                 system.add(i, j, -w);
                 system.add(j, i, -w);
             }
             // keep the system definite where a node has no data at all
-            system.add(i, i, 1e-6 * per_node);
+            system.add(i, i, 1e-6 * self.per_node);
         }
-        let Some(ch) = system.factor() else {
-            continue;
-        };
-        // one local-global round per matching: more rounds on the same matches were
-        // measured to change nothing (0.900% -> 0.906% on the articulated case)
-        {
-            let rm: Vec<Matrix3<f64>> = def
-                .rot
-                .iter()
-                .map(|q| *q.to_rotation_matrix().matrix())
-                .collect();
-            // one right-hand side per coordinate
-            let mut b = [vec![0.0; nn], vec![0.0; nn], vec![0.0; nn]];
-            for &(v, weight, target) in &terms {
-                let bl = &graph.blend[v];
-                let c: V3 = bl
-                    .iter()
-                    .map(|&(k, w)| rm[k as usize] * (rest[v] - graph.rest[k as usize]) * w)
-                    .sum();
-                for &(i, wi) in bl {
-                    for d in 0..3 {
-                        b[d][i as usize] += weight * wi * (target[d] - c[d]);
-                    }
-                }
-            }
-            for i in 0..nn {
-                for &j in &graph.edges[i] {
-                    let (j, w) = (j as usize, spring(i));
-                    let e = (rm[i] + rm[j]) * (graph.rest[i] - graph.rest[j]) * 0.5;
-                    for d in 0..3 {
-                        b[d][i] += w * e[d];
-                        b[d][j] -= w * e[d];
-                    }
-                }
-                for (bd, p) in b.iter_mut().zip(def.pos[i].iter()) {
-                    bd[i] += 1e-6 * per_node * p;
-                }
-            }
-            let sol = b.map(|rhs| ch.solve(&rhs));
-            for (k, p) in def.pos.iter_mut().enumerate() {
-                *p = V3::new(sol[0][k], sol[1][k], sol[2][k]);
-            }
-            fit_node_rotations(graph, &mut def);
-        }
-        x = graph.apply(&def, rest);
     }
-    let rm: Vec<UnitQuaternion<f64>> = (0..n)
+
+    /// One right-hand side per coordinate, the nodes' rotations in `def` held.
+    fn right_hand_sides(
+        &self,
+        def: &Deformation,
+        rest: &[V3],
+        terms: &[(usize, f64, V3)],
+    ) -> [Vec<f64>; 3] {
+        let graph = self.graph;
+        let nn = graph.rest.len();
+        let rm: Vec<Matrix3<f64>> = def
+            .rot
+            .iter()
+            .map(|q| *q.to_rotation_matrix().matrix())
+            .collect();
+        let mut b = [vec![0.0; nn], vec![0.0; nn], vec![0.0; nn]];
+        for &(v, weight, target) in terms {
+            let bl = &graph.blend[v];
+            let c: V3 = bl
+                .iter()
+                .map(|&(k, w)| rm[k as usize] * (rest[v] - graph.rest[k as usize]) * w)
+                .sum();
+            for &(i, wi) in bl {
+                for d in 0..3 {
+                    b[d][i as usize] += weight * wi * (target[d] - c[d]);
+                }
+            }
+        }
+        for i in 0..nn {
+            for &j in &graph.edges[i] {
+                let (j, w) = (j as usize, self.weight(i));
+                let e = (rm[i] + rm[j]) * (graph.rest[i] - graph.rest[j]) * 0.5;
+                for d in 0..3 {
+                    b[d][i] += w * e[d];
+                    b[d][j] -= w * e[d];
+                }
+            }
+            for (bd, p) in b.iter_mut().zip(def.pos[i].iter()) {
+                bd[i] += 1e-6 * self.per_node * p;
+            }
+        }
+        b
+    }
+}
+
+/// Each vertex's rotation, blended from its nodes' (to seed the fine stage).
+fn vertex_rotations(graph: &Graph, def: &Deformation, n: usize) -> Vec<UnitQuaternion<f64>> {
+    (0..n)
         .map(|v| {
             let m: Matrix3<f64> = graph.blend[v]
                 .iter()
@@ -353,8 +419,7 @@ pub fn run(
                     .map_or(UnitQuaternion::identity(), |b| def.rot[b.0 as usize]),
             )
         })
-        .collect();
-    (x, rm)
+        .collect()
 }
 
 /// The coarse stage's normal equations over the nodes: sparse (a node couples only with

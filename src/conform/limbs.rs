@@ -136,22 +136,11 @@ pub fn search(
     scan: &ScanSurface,
     s: &SearchSettings,
 ) -> Vec<f64> {
-    let n = x.len();
     let tau = s.cover * scan.diagonal;
     let step = (scan.points.len() / SCAN_SAMPLES).max(1);
     let samples: Vec<V3> = scan.points.iter().step_by(step).copied().collect();
-    let m = samples.len() as f64;
     let dirs = sphere_directions(s.directions);
-    // the limbs' distance to the scan is truncated at `tau`: a sparser scan answers it as
-    // well and its tree stays in cache
-    let near_step = (scan.points.len() / SURFACE_SAMPLES).max(1);
-    let near_idx: Vec<usize> = (0..scan.points.len()).step_by(near_step).collect();
-    let near_pts: Vec<[f64; 3]> = near_idx
-        .iter()
-        .map(|&k| [scan.points[k].x, scan.points[k].y, scan.points[k].z])
-        .collect();
-    let near_tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&near_pts);
-    let near_normals: Vec<V3> = near_idx.iter().map(|&k| scan.normal(k)).collect();
+    let near = NearScan::new(scan);
     let mut turns = Vec::new();
     for _ in 0..s.passes {
         for limb in limbs {
@@ -161,136 +150,17 @@ pub fn search(
                 return turns;
             }
             let normals = vertex_normals(x, tris);
-            let mut moved = vec![false; n];
-            for &(i, w) in &limb.weights {
-                moved[i as usize] = w > 0.0;
-            }
-            // what the rest of the body covers does not depend on the limb's turn
-            let rest: Vec<[f64; 3]> = {
-                let others: Vec<usize> = (0..n).filter(|&i| !moved[i]).collect();
-                let st = (others.len() / REST_SAMPLES).max(1);
-                others
-                    .iter()
-                    .step_by(st)
-                    .map(|&i| [x[i].x, x[i].y, x[i].z])
-                    .collect()
+            let body = Body {
+                x,
+                normals: &normals,
+                area: &area,
+                total_area,
             };
-            if rest.is_empty() {
+            let Some(turn) = LimbTurn::new(&body, limb, &samples, &near, tau) else {
                 continue;
-            }
-            let rest_tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&rest);
-            let open: Vec<V3> = samples
-                .par_iter()
-                .filter(|p| !within(&rest_tree, p, tau))
-                .copied()
-                .collect();
-            let st = (limb.weights.len() / LIMB_SAMPLES).max(1);
-            let probe: Vec<(u32, f64)> = limb.weights.iter().step_by(st).copied().collect();
-            let limb_area: f64 = limb.weights.iter().map(|&(i, _)| area[i as usize]).sum();
-            // scan samples the limb would hold if the scan saw all of it
-            let limb_samples = m * limb_area / total_area;
-            // a probe vertex stands for its share of the limb, in scan samples
-            let probe_area: f64 = probe.iter().map(|&(i, _)| area[i as usize]).sum();
-            let per_area = if probe_area > 0.0 {
-                m / total_area * limb_area / probe_area
-            } else {
-                0.0
             };
-            let joint =
-                limb.ring.iter().map(|&i| x[i as usize]).sum::<V3>() / limb.ring.len() as f64;
-            // only open samples within the limb's reach of the joint can change with its
-            // turn; the others count the same for every turn
-            let reach = limb
-                .weights
-                .iter()
-                .map(|&(i, _)| (x[i as usize] - joint).norm())
-                .fold(0.0, f64::max)
-                + tau;
-            let open: Vec<V3> = open
-                .into_iter()
-                .filter(|p| (p - joint).norm() <= reach)
-                .collect();
-            let tip = x[limb.tip as usize];
-            let along = tip - joint;
-            if !(along.norm() > 0.0) {
-                continue;
-            }
-            let along = along.normalize();
-            // the score of a turn: samples left open plus the limb's distance off the scan
-            let score = |rot: &Option<(Unit<V3>, f64)>| -> f64 {
-                let turned = |i: u32, w: f64| -> (V3, V3) {
-                    let (p, nv) = (x[i as usize], normals[i as usize]);
-                    match rot {
-                        Some((axis, angle)) => {
-                            let r = Rotation3::from_axis_angle(axis, angle * w);
-                            (joint + r * (p - joint), r * nv)
-                        }
-                        None => (p, nv),
-                    }
-                };
-                let mut off = 0.0;
-                let mut pts = Vec::with_capacity(probe.len());
-                for &(i, w) in &probe {
-                    let (p, nv) = turned(i, w);
-                    // past `tau` the distance counts as `tau`: a bounded query is enough
-                    let dd = match nearest_within(&near_tree, &p, tau) {
-                        Some((k, d)) if near_normals[k].dot(&nv) > 0.3 => d / tau,
-                        _ => 1.0,
-                    };
-                    off += area[i as usize] * dd;
-                    pts.push([p.x, p.y, p.z]);
-                }
-                let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&pts);
-                // a sample farther than `tau` from the probes' box stays open: no query
-                let (lo, hi) = crate::mesh::bounds(pts.iter().map(|q| V3::from(*q)))
-                    .unwrap_or((V3::zeros(), V3::zeros()));
-                let (lo, hi) = (lo - V3::repeat(tau), hi + V3::repeat(tau));
-                let still_open = open
-                    .iter()
-                    .filter(|p| {
-                        let inside = p.x >= lo.x
-                            && p.y >= lo.y
-                            && p.z >= lo.z
-                            && p.x <= hi.x
-                            && p.y <= hi.y
-                            && p.z <= hi.z;
-                        !inside || !within(&tree, p, tau)
-                    })
-                    .count();
-                still_open as f64 + off * per_area
-            };
-            let here = score(&None);
-            let best_of = |dirs: &[V3]| {
-                dirs.par_iter()
-                    .filter_map(|d| {
-                        let angle = along.dot(d).clamp(-1.0, 1.0).acos();
-                        if angle.to_degrees() > s.max_degrees || angle < 1e-3 {
-                            return None;
-                        }
-                        let axis = Unit::try_new(along.cross(d), 1e-9)?;
-                        Some((score(&Some((axis, angle))), *d))
-                    })
-                    .min_by(|a, b| a.0.total_cmp(&b.0))
-            };
-            // the sphere's lattice first, then a finer one around its best direction
-            let best = best_of(&dirs).and_then(|(sc, d)| {
-                let spread = (4.0 / s.directions as f64).sqrt();
-                let near: Vec<V3> = dirs
-                    .iter()
-                    .map(|e| (d + (e - d * d.dot(e)) * spread).normalize())
-                    .filter(|e| e.dot(&d) > 0.0)
-                    .collect();
-                best_of(&near).filter(|b| b.0 < sc).or(Some((sc, d)))
-            });
-            let best = best.and_then(|(sc, d)| {
-                let angle = along.dot(&d).clamp(-1.0, 1.0).acos();
-                Unit::try_new(along.cross(&d), 1e-9).map(|axis| (sc, Some((axis, angle))))
-            });
-            // a turn must explain clearly more than noise: a tenth of the limb's samples
-            let margin = 0.1 * limb_samples;
-            if let Some((sc, Some((axis, angle)))) = best
-                && sc < here - margin.max(3.0)
-            {
+            if let Some((axis, angle)) = turn.best(&dirs, s) {
+                let joint = turn.joint;
                 for &(i, w) in &limb.weights {
                     let r = Rotation3::from_axis_angle(&axis, angle * w);
                     x[i as usize] = joint + r * (x[i as usize] - joint);
@@ -300,6 +170,211 @@ pub fn search(
         }
     }
     turns
+}
+
+/// The scan points the limbs' distance to the scan is looked up among, with their
+/// normals: that distance is truncated at `tau`, so a sparser scan answers it as well
+/// and its tree stays in cache.
+struct NearScan {
+    tree: ImmutableKdTree<f64, 3>,
+    normals: Vec<V3>,
+}
+
+impl NearScan {
+    fn new(scan: &ScanSurface) -> Self {
+        let near_step = (scan.points.len() / SURFACE_SAMPLES).max(1);
+        let near_idx: Vec<usize> = (0..scan.points.len()).step_by(near_step).collect();
+        let near_pts: Vec<[f64; 3]> = near_idx
+            .iter()
+            .map(|&k| [scan.points[k].x, scan.points[k].y, scan.points[k].z])
+            .collect();
+        NearScan {
+            tree: ImmutableKdTree::new_from_slice(&near_pts),
+            normals: near_idx.iter().map(|&k| scan.normal(k)).collect(),
+        }
+    }
+}
+
+/// The template as placed now: positions, normals and areas per vertex.
+struct Body<'a> {
+    x: &'a [V3],
+    normals: &'a [V3],
+    area: &'a [f64],
+    total_area: f64,
+}
+
+/// One limb's turns weighed: the scan samples the rest of the body leaves open near
+/// the limb, and the probe vertices standing for the limb.
+struct LimbTurn<'a> {
+    body: &'a Body<'a>,
+    near: &'a NearScan,
+    tau: f64,
+    /// open scan samples within the limb's reach of its joint (the others count the
+    /// same for every turn)
+    open: Vec<V3>,
+    probe: Vec<(u32, f64)>,
+    /// scan samples a unit of probe area stands for
+    per_area: f64,
+    /// scan samples the limb would hold if the scan saw all of it
+    limb_samples: f64,
+    joint: V3,
+    along: V3,
+}
+
+impl<'a> LimbTurn<'a> {
+    fn new(
+        body: &'a Body<'a>,
+        limb: &Limb,
+        samples: &[V3],
+        near: &'a NearScan,
+        tau: f64,
+    ) -> Option<Self> {
+        let (x, area) = (body.x, body.area);
+        let n = x.len();
+        let m = samples.len() as f64;
+        let mut moved = vec![false; n];
+        for &(i, w) in &limb.weights {
+            moved[i as usize] = w > 0.0;
+        }
+        // what the rest of the body covers does not depend on the limb's turn
+        let rest: Vec<[f64; 3]> = {
+            let others: Vec<usize> = (0..n).filter(|&i| !moved[i]).collect();
+            let st = (others.len() / REST_SAMPLES).max(1);
+            others
+                .iter()
+                .step_by(st)
+                .map(|&i| [x[i].x, x[i].y, x[i].z])
+                .collect()
+        };
+        if rest.is_empty() {
+            return None;
+        }
+        let rest_tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&rest);
+        let open: Vec<V3> = samples
+            .par_iter()
+            .filter(|p| !within(&rest_tree, p, tau))
+            .copied()
+            .collect();
+        let st = (limb.weights.len() / LIMB_SAMPLES).max(1);
+        let probe: Vec<(u32, f64)> = limb.weights.iter().step_by(st).copied().collect();
+        let limb_area: f64 = limb.weights.iter().map(|&(i, _)| area[i as usize]).sum();
+        let limb_samples = m * limb_area / body.total_area;
+        // a probe vertex stands for its share of the limb, in scan samples
+        let probe_area: f64 = probe.iter().map(|&(i, _)| area[i as usize]).sum();
+        let per_area = if probe_area > 0.0 {
+            m / body.total_area * limb_area / probe_area
+        } else {
+            0.0
+        };
+        let joint = limb.ring.iter().map(|&i| x[i as usize]).sum::<V3>() / limb.ring.len() as f64;
+        let reach = limb
+            .weights
+            .iter()
+            .map(|&(i, _)| (x[i as usize] - joint).norm())
+            .fold(0.0, f64::max)
+            + tau;
+        let open: Vec<V3> = open
+            .into_iter()
+            .filter(|p| (p - joint).norm() <= reach)
+            .collect();
+        let along = x[limb.tip as usize] - joint;
+        if !(along.norm() > 0.0) {
+            return None;
+        }
+        Some(LimbTurn {
+            body,
+            near,
+            tau,
+            open,
+            probe,
+            per_area,
+            limb_samples,
+            joint,
+            along: along.normalize(),
+        })
+    }
+
+    /// The score of a turn (axis, angle; `None` for none): samples left open plus the
+    /// limb's distance off the scan.
+    fn score(&self, rot: &Option<(Unit<V3>, f64)>) -> f64 {
+        let (x, normals, area) = (self.body.x, self.body.normals, self.body.area);
+        let (joint, tau) = (self.joint, self.tau);
+        let turned = |i: u32, w: f64| -> (V3, V3) {
+            let (p, nv) = (x[i as usize], normals[i as usize]);
+            match rot {
+                Some((axis, angle)) => {
+                    let r = Rotation3::from_axis_angle(axis, angle * w);
+                    (joint + r * (p - joint), r * nv)
+                }
+                None => (p, nv),
+            }
+        };
+        let mut off = 0.0;
+        let mut pts = Vec::with_capacity(self.probe.len());
+        for &(i, w) in &self.probe {
+            let (p, nv) = turned(i, w);
+            // past `tau` the distance counts as `tau`: a bounded query is enough
+            let dd = match nearest_within(&self.near.tree, &p, tau) {
+                Some((k, d)) if self.near.normals[k].dot(&nv) > 0.3 => d / tau,
+                _ => 1.0,
+            };
+            off += area[i as usize] * dd;
+            pts.push([p.x, p.y, p.z]);
+        }
+        let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&pts);
+        // a sample farther than `tau` from the probes' box stays open: no query
+        let (lo, hi) = crate::mesh::bounds(pts.iter().map(|q| V3::from(*q)))
+            .unwrap_or((V3::zeros(), V3::zeros()));
+        let (lo, hi) = (lo - V3::repeat(tau), hi + V3::repeat(tau));
+        let still_open = self
+            .open
+            .iter()
+            .filter(|p| {
+                let inside = p.x >= lo.x
+                    && p.y >= lo.y
+                    && p.z >= lo.z
+                    && p.x <= hi.x
+                    && p.y <= hi.y
+                    && p.z <= hi.z;
+                !inside || !within(&tree, p, tau)
+            })
+            .count();
+        still_open as f64 + off * self.per_area
+    }
+
+    /// The best turn over the sphere's lattice `dirs`, then a finer one around its best
+    /// direction; `None` unless it explains clearly more than noise (a tenth of the
+    /// limb's samples) over leaving the limb as it is.
+    fn best(&self, dirs: &[V3], s: &SearchSettings) -> Option<(Unit<V3>, f64)> {
+        let along = self.along;
+        let here = self.score(&None);
+        let best_of = |dirs: &[V3]| {
+            dirs.par_iter()
+                .filter_map(|d| {
+                    let angle = along.dot(d).clamp(-1.0, 1.0).acos();
+                    if angle.to_degrees() > s.max_degrees || angle < 1e-3 {
+                        return None;
+                    }
+                    let axis = Unit::try_new(along.cross(d), 1e-9)?;
+                    Some((self.score(&Some((axis, angle))), *d))
+                })
+                .min_by(|a, b| a.0.total_cmp(&b.0))
+        };
+        let best = best_of(dirs).and_then(|(sc, d)| {
+            let spread = (4.0 / s.directions as f64).sqrt();
+            let near: Vec<V3> = dirs
+                .iter()
+                .map(|e| (d + (e - d * d.dot(e)) * spread).normalize())
+                .filter(|e| e.dot(&d) > 0.0)
+                .collect();
+            best_of(&near).filter(|b| b.0 < sc).or(Some((sc, d)))
+        });
+        let (sc, d) = best?;
+        let angle = along.dot(&d).clamp(-1.0, 1.0).acos();
+        let axis = Unit::try_new(along.cross(&d), 1e-9)?;
+        let margin = 0.1 * self.limb_samples;
+        (sc < here - margin.max(3.0)).then_some((axis, angle))
+    }
 }
 
 fn within(tree: &ImmutableKdTree<f64, 3>, p: &V3, r: f64) -> bool {
