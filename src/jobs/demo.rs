@@ -5,7 +5,7 @@
 //! and the mode sheet come out.
 
 use super::*;
-use crate::daemon::{Handle, journal::State};
+use crate::daemon::{Handle, Shared, journal::State};
 use crate::station::StationConfig;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::Ordering;
@@ -177,70 +177,15 @@ pub fn demo_station(
         .and_then(|l| l.local_addr())
         .map(|a| a.port())
         .map_err(io(Path::new("127.0.0.1")))?;
-    let replay: Vec<String> = sets
-        .iter()
-        .map(|s| format!("{:?}", s.display().to_string()))
-        .collect();
-    let mut cameras = String::new();
-    for pod in ["pod1", "pod2"] {
-        for side in ["left", "right"] {
-            cameras.push_str(&format!(
-                "\n[[cameras]]\nid = \"{pod}-{side}\"\npod = \"{pod}\"\nside = \"{side}\"\nreplay = [{}]\n",
-                replay.join(", ")
-            ));
-        }
-    }
     let station_file = out.join("station.toml");
-    let text = format!(
-        "# written by `conformd demo`: a virtual crate with replay cameras and a simulated trigger box\n\
-         [station]\nname = \"demo-crate\"\ndata = \"station\"\n\n\
-         [template]\ngeneric = \"pig\"\nvertices = 10000\n\n\
-         [rig]\nfile = \"rig.toml\"\ncalibration = \"sim/calibration\"\n\n\
-         [capture]\nmax_skew_ms = 50.0\n[capture.camera_settings]\nformat = \"GREY\"\nwidth = 1280\nheight = 960\n\n\
-         [trigger]\ndevice = {:?}\n\n\
-         [model]\nfile = \"station/model.json\"\n\n\
-         [daemon]\nlisten = \"127.0.0.1:{port}\"\nrescan_s = 5.0\n{cameras}",
-        trigger.device.display().to_string()
-    );
+    let text = demo_station_file(&sets, &trigger.device, port);
     write_atomic(&station_file, text.as_bytes())?;
     let cfg = StationConfig::load(&station_file)?;
     let results = cfg.station.results();
     let t = Instant::now();
     let daemon = Handle::spawn(cfg, None)?;
     let shared = daemon.shared.clone();
-    wait(&daemon, "the trigger box", Duration::from_secs(20), || {
-        shared
-            .rig
-            .lock()
-            .map(|r| r.trigger_connected)
-            .unwrap_or(false)
-    })?;
-    let n = POSTURES.len() as u64;
-    for i in 0..n {
-        trigger.rfid(&format!("pig-{:02}", i + 1));
-        wait(&daemon, "a capture", Duration::from_secs(60), || {
-            shared.rig.lock().map(|r| r.captures > i).unwrap_or(false)
-        })?;
-    }
-    let mut last = u64::MAX;
-    wait(
-        &daemon,
-        "every capture to be processed",
-        Duration::from_secs(1800),
-        || {
-            let c = shared.journal().counts().unwrap_or_default();
-            let settled = c.done + c.failed;
-            if settled != last {
-                progress("process", settled, n);
-                last = settled;
-            }
-            settled >= n && c.queued == 0 && c.running == 0
-        },
-    )?;
-    crate::daemon::request_model_rebuild(&shared);
-    wait(&daemon, "the model", Duration::from_secs(300), || {
-        !shared.model_busy.load(Ordering::SeqCst)
-    })?;
+    fire_and_process(&daemon, &trigger, progress)?;
     let seconds_station = t.elapsed().as_secs_f64();
 
     let model_path = shared.cfg.model.file.clone().expect("set above");
@@ -251,39 +196,7 @@ pub fn demo_station(
             .find(|p| p.extension().is_some_and(|e| e == "png")),
         None => None,
     };
-    let jobs = shared.journal().list(None, usize::MAX).unwrap_or_default();
-    let mut rows = Vec::new();
-    let mut failed = Vec::new();
-    for job in jobs.iter().rev() {
-        if job.state != State::Done {
-            failed.push((job.id.clone(), job.error.clone().unwrap_or_default()));
-            continue;
-        }
-        let dir = results.join(&job.id);
-        let report: serde_json::Value =
-            crate::files::read_limited(&dir.join("report.json"), crate::files::MAX_REPORT_BYTES)
-                .ok()
-                .and_then(|b| serde_json::from_slice(&b).ok())
-                .unwrap_or_default();
-        let c = &report["conformation"];
-        let scores = match (&model, mesh::read_mesh(&dir.join("conformed.ply"))) {
-            (Some(m), Ok(mesh)) => m
-                .score(&job.id, &mesh)
-                .map(|s| s.scores_sd.into_iter().take(3).collect())
-                .unwrap_or_default(),
-            _ => Vec::new(),
-        };
-        let f = |v: &serde_json::Value| v.as_f64().unwrap_or(f64::NAN);
-        rows.push(DemoRow {
-            capture: job.id.clone(),
-            subject: job.subject.clone().unwrap_or_default(),
-            seconds: f(&report["seconds"]["total"]),
-            mean_distance_pct: f(&c["mean_distance_relative"]) * 100.0,
-            filled_pct: f(&c["filled"]) / f(&c["template_vertices"]) * 100.0,
-            distortion: f(&c["final_variation"]["edge_length"]["std"]),
-            scores,
-        });
-    }
+    let (rows, failed) = demo_rows(&shared, &results, model.as_ref());
     let url = format!("http://{}/", shared.cfg.daemon.listen);
     let demo = StationDemo {
         rows,
@@ -304,4 +217,121 @@ pub fn demo_station(
     daemon.stop()?;
     drop(trigger);
     Ok(demo)
+}
+
+/// The demo's station file: the example rig, replay cameras on the rendered `sets`, the
+/// simulated box at `device`, the API on `port`.
+fn demo_station_file(sets: &[PathBuf], device: &Path, port: u16) -> String {
+    let replay: Vec<String> = sets
+        .iter()
+        .map(|s| format!("{:?}", s.display().to_string()))
+        .collect();
+    let mut cameras = String::new();
+    for pod in ["pod1", "pod2"] {
+        for side in ["left", "right"] {
+            cameras.push_str(&format!(
+                "\n[[cameras]]\nid = \"{pod}-{side}\"\npod = \"{pod}\"\nside = \"{side}\"\nreplay = [{}]\n",
+                replay.join(", ")
+            ));
+        }
+    }
+    format!(
+        "# written by `conformd demo`: a virtual crate with replay cameras and a simulated trigger box\n\
+         [station]\nname = \"demo-crate\"\ndata = \"station\"\n\n\
+         [template]\ngeneric = \"pig\"\nvertices = 10000\n\n\
+         [rig]\nfile = \"rig.toml\"\ncalibration = \"sim/calibration\"\n\n\
+         [capture]\nmax_skew_ms = 50.0\n[capture.camera_settings]\nformat = \"GREY\"\nwidth = 1280\nheight = 960\n\n\
+         [trigger]\ndevice = {:?}\n\n\
+         [model]\nfile = \"station/model.json\"\n\n\
+         [daemon]\nlisten = \"127.0.0.1:{port}\"\nrescan_s = 5.0\n{cameras}",
+        device.display().to_string()
+    )
+}
+
+/// Each posture fired through the box (an RFID read), then every capture waited for
+/// and the posture model rebuilt.
+fn fire_and_process(
+    daemon: &Handle,
+    trigger: &crate::synth::trigger_box::SimulatedBox,
+    progress: &mut dyn FnMut(&str, u64, u64),
+) -> Result<(), JobError> {
+    let shared = daemon.shared.clone();
+    wait(daemon, "the trigger box", Duration::from_secs(20), || {
+        shared
+            .rig
+            .lock()
+            .map(|r| r.trigger_connected)
+            .unwrap_or(false)
+    })?;
+    let n = POSTURES.len() as u64;
+    for i in 0..n {
+        trigger.rfid(&format!("pig-{:02}", i + 1));
+        wait(daemon, "a capture", Duration::from_secs(60), || {
+            shared.rig.lock().map(|r| r.captures > i).unwrap_or(false)
+        })?;
+    }
+    let mut last = u64::MAX;
+    wait(
+        daemon,
+        "every capture to be processed",
+        Duration::from_secs(1800),
+        || {
+            let c = shared.journal().counts().unwrap_or_default();
+            let settled = c.done + c.failed;
+            if settled != last {
+                progress("process", settled, n);
+                last = settled;
+            }
+            settled >= n && c.queued == 0 && c.running == 0
+        },
+    )?;
+    crate::daemon::request_model_rebuild(&shared);
+    wait(daemon, "the model", Duration::from_secs(300), || {
+        !shared.model_busy.load(Ordering::SeqCst)
+    })?;
+    Ok(())
+}
+
+/// One row per processed capture (its fit figures and model scores), and the failed
+/// captures with their errors.
+#[allow(clippy::type_complexity)]
+fn demo_rows(
+    shared: &Shared,
+    results: &Path,
+    model: Option<&crate::model::ShapeModel>,
+) -> (Vec<DemoRow>, Vec<(String, String)>) {
+    let jobs = shared.journal().list(None, usize::MAX).unwrap_or_default();
+    let mut rows = Vec::new();
+    let mut failed = Vec::new();
+    for job in jobs.iter().rev() {
+        if job.state != State::Done {
+            failed.push((job.id.clone(), job.error.clone().unwrap_or_default()));
+            continue;
+        }
+        let dir = results.join(&job.id);
+        let report: serde_json::Value =
+            crate::files::read_limited(&dir.join("report.json"), crate::files::MAX_REPORT_BYTES)
+                .ok()
+                .and_then(|b| serde_json::from_slice(&b).ok())
+                .unwrap_or_default();
+        let c = &report["conformation"];
+        let scores = match (model, mesh::read_mesh(&dir.join("conformed.ply"))) {
+            (Some(m), Ok(mesh)) => m
+                .score(&job.id, &mesh)
+                .map(|s| s.scores_sd.into_iter().take(3).collect())
+                .unwrap_or_default(),
+            _ => Vec::new(),
+        };
+        let f = |v: &serde_json::Value| v.as_f64().unwrap_or(f64::NAN);
+        rows.push(DemoRow {
+            capture: job.id.clone(),
+            subject: job.subject.clone().unwrap_or_default(),
+            seconds: f(&report["seconds"]["total"]),
+            mean_distance_pct: f(&c["mean_distance_relative"]) * 100.0,
+            filled_pct: f(&c["filled"]) / f(&c["template_vertices"]) * 100.0,
+            distortion: f(&c["final_variation"]["edge_length"]["std"]),
+            scores,
+        });
+    }
+    (rows, failed)
 }

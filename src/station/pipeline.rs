@@ -600,6 +600,67 @@ impl Pipeline {
         self.model.clone()
     }
 
+    /// The capture set in `dir` opened, its id checked against its folder's name
+    /// (`fallback_id`), and every pod's images read.
+    fn read_set(
+        &self,
+        dir: &Path,
+        fallback_id: &str,
+    ) -> Result<(CaptureSetDir, String, PodPixels), StageError> {
+        let set = CaptureSetDir::open(dir)
+            .map_err(|e| StageError::new(Stage::Read, fallback_id, e.into()))?;
+        let id = set.id().to_string();
+        if id != fallback_id {
+            // results, journal and API are keyed by the folder's name
+            return Err(StageError::new(
+                Stage::Read,
+                fallback_id,
+                StageCause::CaptureSet(CaptureSetError::Manifest {
+                    path: dir.join("manifest.json").display().to_string(),
+                    msg: format!("its id '{id}' is not its folder's name '{fallback_id}'"),
+                }),
+            ));
+        }
+        let images = read_pod_images(&set, &self.reconstruction.pods)
+            .map_err(|e| StageError::new(Stage::Read, &id, e.into()))?;
+        Ok((set, id, images))
+    }
+
+    /// Landmarks an operator placed on the scan, checked as the page checks them
+    /// (points, on the scan, finite, not in one plane) whether they came from the page or
+    /// a file: the checked landmarks, and the placed points for the report.
+    #[allow(clippy::type_complexity)]
+    fn operator_landmarks(
+        &self,
+        id: &str,
+        scan: &Mesh,
+        scan_landmarks: Option<&[Landmark]>,
+    ) -> Result<(Option<Vec<Landmark>>, Option<Vec<PlacedLandmark>>), StageError> {
+        let bad =
+            |e: String| StageError::new(Stage::Conform, id, ConformError::Landmarks(e).into());
+        Ok(match (scan_landmarks, self.template_landmarks.as_deref()) {
+            (None, _) => (None, None),
+            (Some(_), None) => {
+                return Err(bad(
+                    "scan landmarks were given, but the station's template has none to pair them with ([template] landmarks)".into(),
+                ));
+            }
+            (Some(s), Some(t)) => {
+                let placed: Vec<PlacedLandmark> = crate::mesh::landmarks::scan_points(s)
+                    .map_err(bad)?
+                    .into_iter()
+                    .map(|(name, p)| PlacedLandmark {
+                        name,
+                        position: [p.x, p.y, p.z],
+                    })
+                    .collect();
+                let names: Vec<String> = t.iter().map(|l| l.name.clone()).collect();
+                let checked = super::placed::check(&placed, &names, scan).map_err(bad)?;
+                (Some(checked), Some(placed))
+            }
+        })
+    }
+
     /// Processes the capture set in `dir`: reads and checks it, reconstructs the scan,
     /// conforms the template onto it (aligned automatically, or by `scan_landmarks` that
     /// an operator placed on an earlier scan of this set, paired by name with the
@@ -623,22 +684,7 @@ impl Pipeline {
 
         control.stage(Stage::Read);
         let t = Instant::now();
-        let set = CaptureSetDir::open(dir)
-            .map_err(|e| StageError::new(Stage::Read, &fallback_id, e.into()))?;
-        let id = set.id().to_string();
-        if id != fallback_id {
-            // results, journal and API are keyed by the folder's name
-            return Err(StageError::new(
-                Stage::Read,
-                &fallback_id,
-                StageCause::CaptureSet(CaptureSetError::Manifest {
-                    path: dir.join("manifest.json").display().to_string(),
-                    msg: format!("its id '{id}' is not its folder's name '{fallback_id}'"),
-                }),
-            ));
-        }
-        let images = read_pod_images(&set, &self.reconstruction.pods)
-            .map_err(|e| StageError::new(Stage::Read, &id, e.into()))?;
+        let (set, id, images) = self.read_set(dir, &fallback_id)?;
         seconds.read = t.elapsed().as_secs_f64();
         let stop = |stage| StageError::new(stage, &id, StageCause::Cancelled);
         if control.cancelled() {
@@ -670,31 +716,7 @@ impl Pipeline {
 
         control.stage(Stage::Conform);
         let t = Instant::now();
-        // an operator's landmarks pass the page's checks here too (points, on the scan,
-        // finite, not in one plane), whether they came from the page or a file
-        let bad =
-            |e: String| StageError::new(Stage::Conform, &id, ConformError::Landmarks(e).into());
-        let (checked, placed) = match (scan_landmarks, self.template_landmarks.as_deref()) {
-            (None, _) => (None, None),
-            (Some(_), None) => {
-                return Err(bad(
-                    "scan landmarks were given, but the station's template has none to pair them with ([template] landmarks)".into(),
-                ));
-            }
-            (Some(s), Some(t)) => {
-                let placed: Vec<PlacedLandmark> = crate::mesh::landmarks::scan_points(s)
-                    .map_err(bad)?
-                    .into_iter()
-                    .map(|(name, p)| PlacedLandmark {
-                        name,
-                        position: [p.x, p.y, p.z],
-                    })
-                    .collect();
-                let names: Vec<String> = t.iter().map(|l| l.name.clone()).collect();
-                let checked = super::placed::check(&placed, &names, &scan).map_err(bad)?;
-                (Some(checked), Some(placed))
-            }
-        };
+        let (checked, placed) = self.operator_landmarks(&id, &scan, scan_landmarks)?;
         let pairs = checked
             .as_deref()
             .zip(self.template_landmarks.as_deref())
