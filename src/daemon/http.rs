@@ -868,17 +868,8 @@ fn when(t: Option<f64>) -> String {
 
 const STYLE: &str = "body{font-family:sans-serif;margin:1.5em;color:#222}table{border-collapse:collapse}td,th{padding:4px 10px;border-bottom:1px solid #ddd;text-align:left;vertical-align:top}.done{color:#176b2c}.failed{color:#b00020}.running{color:#1f4fb4}.queued{color:#666}img{border:1px solid #ccc}";
 
-async fn page(Ctx(shared): Ctx<Arc<Shared>>) -> Api<Html<String>> {
-    let st = status_of(&shared)?;
-    let (jobs, failed) = {
-        let mut j = shared.journal();
-        let jobs = j.list(None, 30);
-        let failed = j.list(Some(State::Failed), 10);
-        (jobs, failed)
-    };
-    let jobs = shared.journal_result(jobs).unwrap_or_default();
-    let failed = shared.journal_result(failed).unwrap_or_default();
-    let mut h = String::new();
+/// The status page's head and its queue, disk, trigger and model line.
+fn head_and_queue(h: &mut String, st: &Status) {
     let _ = write!(
         h,
         "<!doctype html><html><head><meta charset=\"utf-8\"><meta http-equiv=\"refresh\" content=\"5\"><title>conformd: {name}</title><style>{STYLE}</style></head><body><h1>conformd: {name}</h1>",
@@ -907,6 +898,10 @@ async fn page(Ctx(shared): Ctx<Arc<Shared>>) -> Api<Html<String>> {
             "not built yet"
         }
     );
+}
+
+/// The latest result's preview, and the journal's state.
+fn latest_and_journal(h: &mut String, st: &Status, jobs: &[Job]) {
     if let Some(latest) = jobs.iter().find(|j| j.state == State::Done) {
         let _ = write!(
             h,
@@ -927,6 +922,10 @@ async fn page(Ctx(shared): Ctx<Arc<Shared>>) -> Api<Html<String>> {
             jr.waiting_handover.len()
         );
     }
+}
+
+/// Entries the daemon will not process, and the workers sharing the journal.
+fn not_taken_and_workers(h: &mut String, st: &Status) {
     if !st.not_taken.is_empty() {
         h.push_str("<h2>Not taken</h2><table id=\"not-taken\"><tr><th>entry</th><th>why it is not processed</th></tr>");
         for n in &st.not_taken {
@@ -955,8 +954,12 @@ async fn page(Ctx(shared): Ctx<Arc<Shared>>) -> Api<Html<String>> {
         }
         h.push_str("</table>");
     }
+}
+
+/// The latest captures, one row each.
+fn captures_table(h: &mut String, jobs: &[Job]) {
     h.push_str("<h2>Captures</h2><table id=\"captures\"><tr><th>capture</th><th>subject</th><th>state</th><th>attempts</th><th>seconds</th><th>preview</th><th>error</th></tr>");
-    for j in &jobs {
+    for j in jobs {
         let total = j
             .seconds
             .as_ref()
@@ -983,6 +986,10 @@ async fn page(Ctx(shared): Ctx<Arc<Shared>>) -> Api<Html<String>> {
         );
     }
     h.push_str("</table>");
+}
+
+/// Results awaiting an operator's review, and the latest failures.
+fn reviews_and_failures(h: &mut String, st: &Status, failed: &[Job]) {
     if !st.awaiting_review.is_empty() {
         h.push_str("<h2>Awaiting review</h2><ul id=\"awaiting-review\">");
         for a in &st.awaiting_review {
@@ -997,7 +1004,7 @@ async fn page(Ctx(shared): Ctx<Arc<Shared>>) -> Api<Html<String>> {
     }
     if !failed.is_empty() {
         h.push_str("<h2>Failures</h2><ul id=\"failures\">");
-        for j in &failed {
+        for j in failed {
             let _ = write!(
                 h,
                 "<li><a href=\"/captures/{id}\">{id}</a> ({stage}): {err}</li>",
@@ -1008,6 +1015,24 @@ async fn page(Ctx(shared): Ctx<Arc<Shared>>) -> Api<Html<String>> {
         }
         h.push_str("</ul>");
     }
+}
+
+async fn page(Ctx(shared): Ctx<Arc<Shared>>) -> Api<Html<String>> {
+    let st = status_of(&shared)?;
+    let (jobs, failed) = {
+        let mut j = shared.journal();
+        let jobs = j.list(None, 30);
+        let failed = j.list(Some(State::Failed), 10);
+        (jobs, failed)
+    };
+    let jobs = shared.journal_result(jobs).unwrap_or_default();
+    let failed = shared.journal_result(failed).unwrap_or_default();
+    let mut h = String::new();
+    head_and_queue(&mut h, &st);
+    latest_and_journal(&mut h, &st, &jobs);
+    not_taken_and_workers(&mut h, &st);
+    captures_table(&mut h, &jobs);
+    reviews_and_failures(&mut h, &st, &failed);
     h.push_str("<p><a href=\"/api/status\">status (JSON)</a> · <a href=\"/api/export.csv\">all results (CSV)</a> · <a href=\"/metrics\">metrics</a></p></body></html>");
     Ok(Html(h))
 }

@@ -402,19 +402,7 @@ async fn serve(
     }
 
     let addr = shared.cfg.daemon.listen.clone();
-    let listener = tokio::net::TcpListener::bind(&addr)
-        .await
-        .map_err(|source| DaemonError::Listen {
-            addr: addr.clone(),
-            source,
-        })?;
-    let app = http::router(shared.clone());
-    let stop = shared.clone();
-    let server = tokio::spawn(http::serve(listener, app, async move {
-        while !stop.stopping.load(Ordering::SeqCst) {
-            tokio::time::sleep(Duration::from_millis(100)).await;
-        }
-    }));
+    let server = start_http(&shared).await?;
 
     let (hint_tx, mut hints) = tokio::sync::mpsc::channel::<Hint>(16);
     let _watcher = if shared.cfg.daemon.watch {
@@ -432,7 +420,45 @@ async fn serve(
     if let Some(r) = ready {
         let _ = r.send(shared.clone());
     }
-    let mut stop_rx = stop_rx;
+    main_loop(&shared, stop_rx, (&mut term, &mut int), &mut hints).await;
+    drain(&shared).await;
+    let name = shared.worker_name.clone();
+    let gone = shared.journal().worker_gone(&name);
+    shared.journal_result(gone);
+    let _ = server.await;
+    info!("conformd daemon stopped");
+    Ok(())
+}
+
+/// The HTTP API and status page, served until the daemon is stopping.
+async fn start_http(shared: &Arc<Shared>) -> Result<tokio::task::JoinHandle<()>, DaemonError> {
+    let addr = shared.cfg.daemon.listen.clone();
+    let listener = tokio::net::TcpListener::bind(&addr)
+        .await
+        .map_err(|source| DaemonError::Listen {
+            addr: addr.clone(),
+            source,
+        })?;
+    let app = http::router(shared.clone());
+    let stop = shared.clone();
+    Ok(tokio::spawn(http::serve(listener, app, async move {
+        while !stop.stopping.load(Ordering::SeqCst) {
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        }
+    })))
+}
+
+/// The daemon's loop: jobs dispatched, captures found (watcher hints, wake-ups,
+/// rescans, settling sets), the watchdog fed, until a stop request, SIGTERM or SIGINT.
+async fn main_loop(
+    shared: &Arc<Shared>,
+    mut stop_rx: Option<tokio::sync::oneshot::Receiver<()>>,
+    signals: (
+        &mut tokio::signal::unix::Signal,
+        &mut tokio::signal::unix::Signal,
+    ),
+    hints: &mut tokio::sync::mpsc::Receiver<Hint>,
+) {
     let stop_requested = async {
         match stop_rx.as_mut() {
             Some(rx) => {
@@ -450,7 +476,7 @@ async fn serve(
         .unwrap_or(Duration::from_secs(3600));
     let mut watchdog = tokio::time::interval(watchdog_every);
     loop {
-        dispatch(&shared);
+        dispatch(shared);
         let due = shared
             .journal()
             .next_due()
@@ -460,9 +486,9 @@ async fn serve(
             .unwrap_or(60.0);
         tokio::select! {
             _ = &mut stop_requested => break,
-            _ = term.recv() => break,
-            _ = int.recv() => break,
-            _ = shared.wake.notified() => scan(&shared),
+            _ = signals.0.recv() => break,
+            _ = signals.1.recv() => break,
+            _ = shared.wake.notified() => scan(shared),
             Some(hint) = hints.recv() => {
                 // a set renamed in is whole: scanned at once. Files being written are a
                 // burst of events: gathered, scanned once
@@ -471,35 +497,30 @@ async fn serve(
                     while let Ok(Some(Hint::Changed)) = tokio::time::timeout_at(until, hints.recv()).await {}
                 }
                 while hints.try_recv().is_ok() {}
-                scan(&shared);
+                scan(shared);
             }
-            _ = rescan.tick() => scan(&shared),
+            _ = rescan.tick() => scan(shared),
             _ = tokio::time::sleep(sets::SETTLE), if shared.settling.load(Ordering::SeqCst) => {
-                scan(&shared)
+                scan(shared)
             }
-            _ = watchdog.tick() => {
-                let c = shared.journal().counts();
-                if let Ok(c) = c {
-                    let status = format!(
-                        "{} queued, {} running, {} done, {} failed",
-                        c.queued, c.running, c.done, c.failed
-                    );
-                    let _ = sd_notify::notify(&[
-                        sd_notify::NotifyState::Watchdog,
-                        sd_notify::NotifyState::Status(&status),
-                    ]);
-                }
-            }
+            _ = watchdog.tick() => notify_watchdog(shared),
             _ = tokio::time::sleep(Duration::from_secs_f64(due)) => {}
         }
     }
-    drain(&shared).await;
-    let name = shared.worker_name.clone();
-    let gone = shared.journal().worker_gone(&name);
-    shared.journal_result(gone);
-    let _ = server.await;
-    info!("conformd daemon stopped");
-    Ok(())
+}
+
+/// The systemd watchdog's ping, with the queue's counts as the unit's status.
+fn notify_watchdog(shared: &Shared) {
+    if let Ok(c) = shared.journal().counts() {
+        let status = format!(
+            "{} queued, {} running, {} done, {} failed",
+            c.queued, c.running, c.done, c.failed
+        );
+        let _ = sd_notify::notify(&[
+            sd_notify::NotifyState::Watchdog,
+            sd_notify::NotifyState::Status(&status),
+        ]);
+    }
 }
 
 /// Every third of a lease: the leases of this daemon's running jobs are renewed, it

@@ -210,77 +210,7 @@ impl Definitions {
             if !seen.insert(d.name.clone()) {
                 return Err(err("named twice".into()));
             }
-            let at = |p: &Point| resolve_point(p, template, landmarks).map_err(&err);
-            let kind = match &d.kind {
-                Kind::Distance { from, to } => Resolved1::Path(vec![at(from)?, at(to)?]),
-                Kind::Path { points } => {
-                    if points.len() < 2 {
-                        return Err(err("a path needs two points or more".into()));
-                    }
-                    Resolved1::Path(points.iter().map(&at).collect::<Result<_, _>>()?)
-                }
-                Kind::Surface { from, to } => Resolved1::Surface(at(from)?, at(to)?),
-                Kind::Girth { at: p, axis, group } => Resolved1::Section {
-                    at: at(p)?,
-                    axis: [at(&axis[0])?, at(&axis[1])?],
-                    across: None,
-                    only: group_triangles(template, group.as_deref()).map_err(&err)?,
-                },
-                Kind::Width {
-                    at: p,
-                    axis,
-                    across,
-                    group,
-                } => Resolved1::Section {
-                    at: at(p)?,
-                    axis: [at(&axis[0])?, at(&axis[1])?],
-                    across: Some([at(&across[0])?, at(&across[1])?]),
-                    only: group_triangles(template, group.as_deref()).map_err(&err)?,
-                },
-                Kind::Height { point } => Resolved1::Height(at(point)?),
-                Kind::Area { group } => Resolved1::Area(
-                    group_triangles(template, group.as_deref())
-                        .map_err(&err)?
-                        .map(|(_, inside)| {
-                            (0..inside.len() as u32)
-                                .filter(|&t| inside[t as usize])
-                                .collect()
-                        }),
-                ),
-                Kind::Volume => {
-                    if !watertight {
-                        return Err(err(
-                            "the template is not watertight (open or non-manifold): it encloses no volume"
-                                .into(),
-                        ));
-                    }
-                    Resolved1::Volume
-                }
-            };
-            if let Resolved1::Section { axis, .. } = &kind
-                && axis[0] == axis[1]
-            {
-                return Err(err("the axis' two points are the same vertex".into()));
-            }
-            // a length between one place and itself is 0 on every mesh: a mistake
-            match &kind {
-                Resolved1::Path(points) => {
-                    if let Some(k) = points.windows(2).position(|w| w[0] == w[1]) {
-                        return Err(err(format!(
-                            "points {} and {} are the same place: the length would be 0 on every mesh",
-                            k + 1,
-                            k + 2
-                        )));
-                    }
-                }
-                Resolved1::Surface(a, b) if a == b => {
-                    return Err(err(
-                        "from and to are the same place: the length would be 0 on every mesh"
-                            .into(),
-                    ));
-                }
-                _ => {}
-            }
+            let kind = resolve_kind(&d.kind, template, landmarks, watertight, &err)?;
             out.push((d.name.clone(), d.kind.clone(), kind, d.posture_free));
         }
         Ok(Resolved {
@@ -291,6 +221,89 @@ impl Definitions {
             items: out,
         })
     }
+}
+
+/// One definition's kind fixed on the template: its points' vertices, its group's
+/// triangles; a length between one place and itself, an axis of one vertex or a
+/// volume of an open template refused.
+fn resolve_kind(
+    kind: &Kind,
+    template: &Mesh,
+    landmarks: &[Landmark],
+    watertight: bool,
+    err: &dyn Fn(String) -> MeasureError,
+) -> Result<Resolved1, MeasureError> {
+    let at = |p: &Point| resolve_point(p, template, landmarks).map_err(err);
+    let resolved = match kind {
+        Kind::Distance { from, to } => Resolved1::Path(vec![at(from)?, at(to)?]),
+        Kind::Path { points } => {
+            if points.len() < 2 {
+                return Err(err("a path needs two points or more".into()));
+            }
+            Resolved1::Path(points.iter().map(&at).collect::<Result<_, _>>()?)
+        }
+        Kind::Surface { from, to } => Resolved1::Surface(at(from)?, at(to)?),
+        Kind::Girth { at: p, axis, group } => Resolved1::Section(SectionDef {
+            at: at(p)?,
+            axis: [at(&axis[0])?, at(&axis[1])?],
+            across: None,
+            only: group_triangles(template, group.as_deref()).map_err(err)?,
+        }),
+        Kind::Width {
+            at: p,
+            axis,
+            across,
+            group,
+        } => Resolved1::Section(SectionDef {
+            at: at(p)?,
+            axis: [at(&axis[0])?, at(&axis[1])?],
+            across: Some([at(&across[0])?, at(&across[1])?]),
+            only: group_triangles(template, group.as_deref()).map_err(err)?,
+        }),
+        Kind::Height { point } => Resolved1::Height(at(point)?),
+        Kind::Area { group } => Resolved1::Area(
+            group_triangles(template, group.as_deref())
+                .map_err(err)?
+                .map(|(_, inside)| {
+                    (0..inside.len() as u32)
+                        .filter(|&t| inside[t as usize])
+                        .collect()
+                }),
+        ),
+        Kind::Volume => {
+            if !watertight {
+                return Err(err(
+                    "the template is not watertight (open or non-manifold): it encloses no volume"
+                        .into(),
+                ));
+            }
+            Resolved1::Volume
+        }
+    };
+    if let Resolved1::Section(SectionDef { axis, .. }) = &resolved
+        && axis[0] == axis[1]
+    {
+        return Err(err("the axis' two points are the same vertex".into()));
+    }
+    // a length between one place and itself is 0 on every mesh: a mistake
+    match &resolved {
+        Resolved1::Path(points) => {
+            if let Some(k) = points.windows(2).position(|w| w[0] == w[1]) {
+                return Err(err(format!(
+                    "points {} and {} are the same place: the length would be 0 on every mesh",
+                    k + 1,
+                    k + 2
+                )));
+            }
+        }
+        Resolved1::Surface(a, b) if a == b => {
+            return Err(err(
+                "from and to are the same place: the length would be 0 on every mesh".into(),
+            ));
+        }
+        _ => {}
+    }
+    Ok(resolved)
 }
 
 /// A point fixed on the template: the vertices whose centroid it is.
@@ -385,16 +398,106 @@ fn nearest(m: &Mesh, q: &V3) -> u32 {
 enum Resolved1 {
     Path(Vec<Fixed>),
     Surface(Fixed, Fixed),
-    Section {
-        at: Fixed,
-        axis: [Fixed; 2],
-        across: Option<[Fixed; 2]>,
-        /// the group the section is cut from, and its triangles
-        only: Option<(String, Vec<bool>)>,
-    },
+    Section(SectionDef),
     Height(Fixed),
     Area(Option<Vec<u32>>),
     Volume,
+}
+
+/// A girth or width: the section of the mesh by the plane through `at` across
+/// `axis`, its hull's perimeter or its extent along `across`.
+#[derive(Debug, Clone)]
+struct SectionDef {
+    at: Fixed,
+    axis: [Fixed; 2],
+    across: Option<[Fixed; 2]>,
+    /// the group the section is cut from, and its triangles
+    only: Option<(String, Vec<bool>)>,
+}
+
+impl SectionDef {
+    /// The section's value, its line, whether it is a loop, and a warning when it was
+    /// cut from its group while other parts touch it. With a posture, the plane where
+    /// the parts at `at` carry the template's.
+    fn measure(
+        &self,
+        mesh: &Mesh,
+        posed: Option<&posture::Posed>,
+        unit: &str,
+        err: &dyn Fn(String) -> MeasureError,
+    ) -> Result<(f64, Vec<V3>, bool, Option<String>), MeasureError> {
+        let SectionDef {
+            at,
+            axis,
+            across,
+            only,
+        } = self;
+        let v = &mesh.vertices;
+        let mean = |f: &Fixed, at: &dyn Fn(u32) -> V3| {
+            f.iter().map(|&i| at(i)).sum::<V3>() / f.len() as f64
+        };
+        let place = |f: &Fixed| mean(f, &|i| v[i as usize]);
+        let (p, normal, side) = match posed {
+            None => (
+                place(at),
+                place(&axis[1]) - place(&axis[0]),
+                across.as_ref().map(|[a, b]| place(b) - place(a)),
+            ),
+            // the plane where the parts at `at` carry the template's
+            Some(ps) => {
+                let rest = |f: &Fixed| mean(f, &|i| ps.rest(i));
+                let turned = |d: V3| mean(at, &|i| ps.turned(i, &d));
+                (
+                    mean(at, &|i| ps.carried(i)),
+                    turned(rest(&axis[1]) - rest(&axis[0])),
+                    across.as_ref().map(|[a, b]| turned(rest(b) - rest(a))),
+                )
+            }
+        };
+        let normal = normal
+            .try_normalize(0.0)
+            .ok_or_else(|| err("the axis has no length on this mesh".into()))?;
+        let mask = only.as_ref().map(|(_, m)| &m[..]);
+        let (piece, whole) = section_pieces(mesh, &p, &normal, mask)
+            .ok_or_else(|| err("the plane does not cut the mesh".into()))?;
+        // a plane through the mesh's extreme vertex touches it at one point:
+        // no section to measure, not a girth of 0
+        let spread = piece
+            .iter()
+            .map(|q| (q - piece[0]).norm())
+            .fold(0.0, f64::max);
+        if !(spread > 1e-6 * mesh.diagonal()) {
+            return Err(err(format!(
+                "the plane only touches the mesh at ({:.4}, {:.4}, {:.4}); there is no section to measure",
+                piece[0].x, piece[0].y, piece[0].z
+            )));
+        }
+        let across_dir = match side {
+            None => None,
+            Some(d) => {
+                let s = d - normal * normal.dot(&d);
+                // within ~6 degrees of the axis the direction across is noise
+                if !(s.norm() > 0.1 * d.norm()) {
+                    return Err(err(
+                        "the width's direction (across) lies along the axis on this mesh; it must cross the section".into(),
+                    ));
+                }
+                Some(s.normalize())
+            }
+        };
+        let (value, line, closed) = section_value(&piece, &normal, across_dir);
+        let mut warning = None;
+        if let (Some(whole), Some((group, _))) = (whole, only) {
+            let with = section_value(&whole, &normal, across_dir).0;
+            if (with - value).abs() > 0.01 * value {
+                warning = Some(format!(
+                    "cut from the '{group}' group only: other parts touching the section (left out) would make it {with:.4} {}",
+                    unit
+                ));
+            }
+        }
+        Ok((value, line, closed, warning))
+    }
 }
 
 /// Definitions fixed on one template, ready to measure its results.
@@ -495,70 +598,9 @@ impl Resolved {
                     let (length, line) = edge_path(mesh, a[0], b[0]);
                     (length, 1, vec![line], false)
                 }
-                Resolved1::Section {
-                    at,
-                    axis,
-                    across,
-                    only,
-                } => {
-                    let (p, normal, side) = match posed {
-                        None => (
-                            place(at),
-                            place(&axis[1]) - place(&axis[0]),
-                            across.as_ref().map(|[a, b]| place(b) - place(a)),
-                        ),
-                        // the plane where the parts at `at` carry the template's
-                        Some(ps) => {
-                            let rest = |f: &Fixed| mean(f, &|i| ps.rest(i));
-                            let turned = |d: V3| mean(at, &|i| ps.turned(i, &d));
-                            (
-                                mean(at, &|i| ps.carried(i)),
-                                turned(rest(&axis[1]) - rest(&axis[0])),
-                                across.as_ref().map(|[a, b]| turned(rest(b) - rest(a))),
-                            )
-                        }
-                    };
-                    let normal = normal
-                        .try_normalize(0.0)
-                        .ok_or_else(|| err("the axis has no length on this mesh".into()))?;
-                    let mask = only.as_ref().map(|(_, m)| &m[..]);
-                    let (piece, whole) = section_pieces(mesh, &p, &normal, mask)
-                        .ok_or_else(|| err("the plane does not cut the mesh".into()))?;
-                    // a plane through the mesh's extreme vertex touches it at one point:
-                    // no section to measure, not a girth of 0
-                    let spread = piece
-                        .iter()
-                        .map(|q| (q - piece[0]).norm())
-                        .fold(0.0, f64::max);
-                    if !(spread > 1e-6 * mesh.diagonal()) {
-                        return Err(err(format!(
-                            "the plane only touches the mesh at ({:.4}, {:.4}, {:.4}); there is no section to measure",
-                            piece[0].x, piece[0].y, piece[0].z
-                        )));
-                    }
-                    let across_dir = match side {
-                        None => None,
-                        Some(d) => {
-                            let s = d - normal * normal.dot(&d);
-                            // within ~6 degrees of the axis the direction across is noise
-                            if !(s.norm() > 0.1 * d.norm()) {
-                                return Err(err(
-                                    "the width's direction (across) lies along the axis on this mesh; it must cross the section".into(),
-                                ));
-                            }
-                            Some(s.normalize())
-                        }
-                    };
-                    let (value, line, closed) = section_value(&piece, &normal, across_dir);
-                    if let (Some(whole), Some((group, _))) = (whole, only) {
-                        let with = section_value(&whole, &normal, across_dir).0;
-                        if (with - value).abs() > 0.01 * value {
-                            warning = Some(format!(
-                                "cut from the '{group}' group only: other parts touching the section (left out) would make it {with:.4} {}",
-                                self.unit
-                            ));
-                        }
-                    }
+                Resolved1::Section(def) => {
+                    let (value, line, closed, w) = def.measure(mesh, posed, &self.unit, &err)?;
+                    warning = w;
                     (value, 1, vec![line], closed)
                 }
                 Resolved1::Height(f) => match posed {
