@@ -221,6 +221,69 @@ fn apply(t: &Similarity, v: &[V3]) -> Vec<V3> {
     v.iter().map(|p| t.apply(p)).collect()
 }
 
+/// The samples agree: one vertex count and triangulation, every coordinate finite.
+fn check_samples(samples: &[(String, Mesh)]) -> Result<(), ModelError> {
+    let (first_name, first) = &samples[0];
+    for (name, m) in samples {
+        if m.vertices.len() != first.vertices.len() {
+            return Err(ModelError::VertexCount {
+                name: name.clone(),
+                got: m.vertices.len(),
+                first: first_name.clone(),
+                want: first.vertices.len(),
+            });
+        }
+        if m.triangles != first.triangles {
+            return Err(ModelError::Topology {
+                name: name.clone(),
+                first: first_name.clone(),
+            });
+        }
+        if let Some(v) = m
+            .vertices
+            .iter()
+            .position(|p| !p.iter().all(|c| c.is_finite()))
+        {
+            return Err(ModelError::NotFinite {
+                name: name.clone(),
+                vertex: v,
+            });
+        }
+    }
+    Ok(())
+}
+
+/// The vertices a model covers (all, or vertex group `group`), and the triangles among
+/// them renumbered.
+#[allow(clippy::type_complexity)]
+fn group_subset(
+    first: &Mesh,
+    group: Option<&str>,
+) -> Result<(Vec<u32>, Vec<[u32; 3]>), ModelError> {
+    let indices: Vec<u32> = match group {
+        Some(g) => first
+            .groups
+            .get(g)
+            .cloned()
+            .ok_or_else(|| ModelError::NoGroup {
+                group: g.to_string(),
+                known: first.group_names(),
+            })?,
+        None => (0..first.vertices.len() as u32).collect(),
+    };
+    let mut local = vec![u32::MAX; first.vertices.len()];
+    for (k, &i) in indices.iter().enumerate() {
+        local[i as usize] = k as u32;
+    }
+    let triangles: Vec<[u32; 3]> = first
+        .triangles
+        .iter()
+        .filter(|t| t.iter().all(|&i| local[i as usize] != u32::MAX))
+        .map(|t| t.map(|i| local[i as usize]))
+        .collect();
+    Ok((indices, triangles))
+}
+
 impl ShapeModel {
     /// Builds a model from conformed meshes sharing one template's topology.
     ///
@@ -233,54 +296,9 @@ impl ShapeModel {
         if samples.len() < 3 {
             return Err(ModelError::TooFew(samples.len()));
         }
-        let (first_name, first) = &samples[0];
-        for (name, m) in samples {
-            if m.vertices.len() != first.vertices.len() {
-                return Err(ModelError::VertexCount {
-                    name: name.clone(),
-                    got: m.vertices.len(),
-                    first: first_name.clone(),
-                    want: first.vertices.len(),
-                });
-            }
-            if m.triangles != first.triangles {
-                return Err(ModelError::Topology {
-                    name: name.clone(),
-                    first: first_name.clone(),
-                });
-            }
-            if let Some(v) = m
-                .vertices
-                .iter()
-                .position(|p| !p.iter().all(|c| c.is_finite()))
-            {
-                return Err(ModelError::NotFinite {
-                    name: name.clone(),
-                    vertex: v,
-                });
-            }
-        }
-        let indices: Vec<u32> = match &opts.group {
-            Some(g) => first
-                .groups
-                .get(g)
-                .cloned()
-                .ok_or_else(|| ModelError::NoGroup {
-                    group: g.clone(),
-                    known: first.group_names(),
-                })?,
-            None => (0..first.vertices.len() as u32).collect(),
-        };
-        let mut local = vec![u32::MAX; first.vertices.len()];
-        for (k, &i) in indices.iter().enumerate() {
-            local[i as usize] = k as u32;
-        }
-        let triangles: Vec<[u32; 3]> = first
-            .triangles
-            .iter()
-            .filter(|t| t.iter().all(|&i| local[i as usize] != u32::MAX))
-            .map(|t| t.map(|i| local[i as usize]))
-            .collect();
+        check_samples(samples)?;
+        let first = &samples[0].1;
+        let (indices, triangles) = group_subset(first, opts.group.as_deref())?;
         let shapes: Vec<Vec<V3>> = samples
             .iter()
             .map(|(_, m)| indices.iter().map(|&i| m.vertices[i as usize]).collect())

@@ -758,32 +758,7 @@ pub fn fuse(points: Vec<(V3, V3)>, o: &ReconstructOptions, report: &mut Reconstr
     };
     report.after_crop = pts.len();
     if o.voxel > 0.0 {
-        // each voxel's points averaged, voxels in key order: the points sorted by their
-        // voxel (stably, so each voxel sums in the points' order), then each run summed
-        let mut keyed: Vec<([i64; 3], usize)> = pts
-            .par_iter()
-            .enumerate()
-            .map(|(i, (p, _))| {
-                let key = [
-                    (p.x / o.voxel).floor() as i64,
-                    (p.y / o.voxel).floor() as i64,
-                    (p.z / o.voxel).floor() as i64,
-                ];
-                (key, i)
-            })
-            .collect();
-        keyed.par_sort_by_key(|(k, _)| *k);
-        pts = keyed
-            .chunk_by(|a, b| a.0 == b.0)
-            .map(|run| {
-                let (p, c) = run
-                    .iter()
-                    .fold((V3::zeros(), V3::zeros()), |(p, c), &(_, i)| {
-                        (p + pts[i].0, c + pts[i].1)
-                    });
-                (p / run.len() as f64, c / run.len() as f64)
-            })
-            .collect();
+        pts = voxel_average(&pts, o.voxel);
     }
     report.after_voxel = pts.len();
     // each kept point's nearest neighbours (itself first, indices after the removal)
@@ -791,92 +766,141 @@ pub fn fuse(points: Vec<(V3, V3)>, o: &ReconstructOptions, report: &mut Reconstr
     // search of its own
     let mut near: Vec<Option<Vec<u32>>> = Vec::new();
     if o.outlier_k > 0 && pts.len() > o.outlier_k + 1 {
-        let arr: Vec<[f64; 3]> = pts.iter().map(|(p, _)| [p.x, p.y, p.z]).collect();
-        let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&arr);
-        let k = NonZero::new((o.outlier_k + 1).max(NORMAL_NEIGHBOURS)).unwrap();
-        let found: Vec<(f64, Vec<u32>)> = arr
-            .par_iter()
-            .map(|q| {
-                let nb = tree.nearest_n::<SquaredEuclidean>(q, k);
-                let mean = nb
-                    .iter()
-                    .skip(1)
-                    .take(o.outlier_k)
-                    .map(|m| m.distance.sqrt())
-                    .sum::<f64>()
-                    / o.outlier_k as f64;
-                let ids = nb
-                    .iter()
-                    .take(NORMAL_NEIGHBOURS)
-                    .map(|m| m.item as u32)
-                    .collect();
-                (mean, ids)
-            })
-            .collect();
-        let n = found.len() as f64;
-        let mu = found.iter().map(|f| f.0).sum::<f64>() / n;
-        let sd = (found.iter().map(|f| (f.0 - mu).powi(2)).sum::<f64>() / n).sqrt();
-        let keep: Vec<bool> = found
-            .iter()
-            .map(|f| f.0 <= mu + o.outlier_sigma * sd)
-            .collect();
-        let mut renumber = vec![u32::MAX; keep.len()];
-        let mut next = 0;
-        for (i, &k) in keep.iter().enumerate() {
-            if k {
-                renumber[i] = next;
-                next += 1;
-            }
-        }
-        near = found
-            .into_iter()
-            .zip(&keep)
-            .filter(|(_, k)| **k)
-            .map(|((_, ids), _)| {
-                let ids: Vec<u32> = ids.iter().map(|&j| renumber[j as usize]).collect();
-                (ids.len() == NORMAL_NEIGHBOURS && !ids.contains(&u32::MAX)).then_some(ids)
-            })
-            .collect();
-        pts = pts
-            .into_iter()
-            .zip(keep)
-            .filter(|(_, k)| *k)
-            .map(|(p, _)| p)
-            .collect();
+        (pts, near) = remove_outliers(pts, o);
     }
     report.after_outliers = pts.len();
-    // normals from 12 neighbours, turned towards the camera that saw the point
-    let arr: Vec<[f64; 3]> = pts.iter().map(|(p, _)| [p.x, p.y, p.z]).collect();
     let mut mesh = Mesh::new(pts.iter().map(|(p, _)| *p).collect(), vec![]);
-    if arr.len() > NORMAL_NEIGHBOURS {
-        let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&arr);
-        let normals = pts
-            .par_iter()
-            .enumerate()
-            .map(|(i, (p, cam))| {
-                let searched;
-                let nb: &[u32] = match near.get(i) {
-                    Some(Some(ids)) => ids,
-                    _ => {
-                        searched = tree
-                            .nearest_n::<SquaredEuclidean>(
-                                &[p.x, p.y, p.z],
-                                NonZero::new(NORMAL_NEIGHBOURS).unwrap(),
-                            )
-                            .iter()
-                            .map(|m| m.item as u32)
-                            .collect::<Vec<u32>>();
-                        &searched
-                    }
-                };
-                let n = crate::mesh::plane_normal(nb.iter().map(|&j| mesh.vertices[j as usize]));
-                if n.dot(&(cam - p)) < 0.0 { -n } else { n }
-            })
-            .collect();
-        mesh.normals = Some(normals);
-    }
+    mesh.normals = fused_normals(&pts, &mesh.vertices, &near);
     report.seconds_fuse = t.elapsed().as_secs_f64();
     mesh
+}
+
+/// Each voxel's points averaged (position and camera), voxels in key order: the points
+/// sorted by their voxel (stably, so each voxel sums in the points' order), then each
+/// run summed.
+fn voxel_average(pts: &[(V3, V3)], voxel: f64) -> Vec<(V3, V3)> {
+    let mut keyed: Vec<([i64; 3], usize)> = pts
+        .par_iter()
+        .enumerate()
+        .map(|(i, (p, _))| {
+            let key = [
+                (p.x / voxel).floor() as i64,
+                (p.y / voxel).floor() as i64,
+                (p.z / voxel).floor() as i64,
+            ];
+            (key, i)
+        })
+        .collect();
+    keyed.par_sort_by_key(|(k, _)| *k);
+    keyed
+        .chunk_by(|a, b| a.0 == b.0)
+        .map(|run| {
+            let (p, c) = run
+                .iter()
+                .fold((V3::zeros(), V3::zeros()), |(p, c), &(_, i)| {
+                    (p + pts[i].0, c + pts[i].1)
+                });
+            (p / run.len() as f64, c / run.len() as f64)
+        })
+        .collect()
+}
+
+/// Points whose mean distance to their `outlier_k` nearest is more than `outlier_sigma`
+/// standard deviations above the mean removed. Also, per kept point, its nearest
+/// neighbours (itself first, indices after the removal) where none of them was
+/// removed: its normal then needs no search of its own.
+#[allow(clippy::type_complexity)]
+fn remove_outliers(
+    pts: Vec<(V3, V3)>,
+    o: &ReconstructOptions,
+) -> (Vec<(V3, V3)>, Vec<Option<Vec<u32>>>) {
+    let arr: Vec<[f64; 3]> = pts.iter().map(|(p, _)| [p.x, p.y, p.z]).collect();
+    let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&arr);
+    let k = NonZero::new((o.outlier_k + 1).max(NORMAL_NEIGHBOURS)).unwrap();
+    let found: Vec<(f64, Vec<u32>)> = arr
+        .par_iter()
+        .map(|q| {
+            let nb = tree.nearest_n::<SquaredEuclidean>(q, k);
+            let mean = nb
+                .iter()
+                .skip(1)
+                .take(o.outlier_k)
+                .map(|m| m.distance.sqrt())
+                .sum::<f64>()
+                / o.outlier_k as f64;
+            let ids = nb
+                .iter()
+                .take(NORMAL_NEIGHBOURS)
+                .map(|m| m.item as u32)
+                .collect();
+            (mean, ids)
+        })
+        .collect();
+    let n = found.len() as f64;
+    let mu = found.iter().map(|f| f.0).sum::<f64>() / n;
+    let sd = (found.iter().map(|f| (f.0 - mu).powi(2)).sum::<f64>() / n).sqrt();
+    let keep: Vec<bool> = found
+        .iter()
+        .map(|f| f.0 <= mu + o.outlier_sigma * sd)
+        .collect();
+    let mut renumber = vec![u32::MAX; keep.len()];
+    let mut next = 0;
+    for (i, &k) in keep.iter().enumerate() {
+        if k {
+            renumber[i] = next;
+            next += 1;
+        }
+    }
+    let near = found
+        .into_iter()
+        .zip(&keep)
+        .filter(|(_, k)| **k)
+        .map(|((_, ids), _)| {
+            let ids: Vec<u32> = ids.iter().map(|&j| renumber[j as usize]).collect();
+            (ids.len() == NORMAL_NEIGHBOURS && !ids.contains(&u32::MAX)).then_some(ids)
+        })
+        .collect();
+    let pts = pts
+        .into_iter()
+        .zip(keep)
+        .filter(|(_, k)| *k)
+        .map(|(p, _)| p)
+        .collect();
+    (pts, near)
+}
+
+/// Normals from 12 neighbours (those in `near`, else searched), turned towards the
+/// camera that saw the point; `None` for too few points.
+fn fused_normals(pts: &[(V3, V3)], vertices: &[V3], near: &[Option<Vec<u32>>]) -> Option<Vec<V3>> {
+    let arr: Vec<[f64; 3]> = pts.iter().map(|(p, _)| [p.x, p.y, p.z]).collect();
+    if arr.len() <= NORMAL_NEIGHBOURS {
+        return None;
+    }
+    let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&arr);
+    let normals: Vec<V3> = pts
+        .par_iter()
+        .enumerate()
+        .map(|(i, (p, cam))| {
+            let searched;
+            let nb: &[u32] = match near.get(i) {
+                Some(Some(ids)) => ids,
+                _ => {
+                    searched = tree
+                        .nearest_n::<SquaredEuclidean>(
+                            &[p.x, p.y, p.z],
+                            NonZero::new(NORMAL_NEIGHBOURS).unwrap(),
+                        )
+                        .iter()
+                        .map(|m| m.item as u32)
+                        .collect::<Vec<u32>>();
+                    &searched
+                }
+            };
+            let n = crate::mesh::plane_normal(nb.iter().map(|&j| vertices[j as usize]));
+            if n.dot(&(cam - p)) < 0.0 { -n } else { n }
+        })
+        .collect();
+    Some(normals)
 }
 
 impl std::fmt::Display for ReconstructReport {
