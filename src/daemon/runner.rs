@@ -177,52 +177,7 @@ pub fn record(
         (job.attempts < spec.max_attempts).then(|| super::journal::now() + backoff_s(job.attempts));
     let nothing = &mut || Ok(());
     let (how, recorded) = match &ended {
-        Ended::Outcome(o) if o.ok => {
-            let seconds = o
-                .seconds
-                .as_ref()
-                .and_then(|s| serde_json::to_value(s).ok())
-                .unwrap_or_default();
-            let staged = o.result.clone().filter(|_| o.staged);
-            let Some(staged) = staged else {
-                // a program that published by itself: nothing to rename
-                let result = o
-                    .result
-                    .clone()
-                    .unwrap_or_else(|| spec.results.join(&job.id));
-                let how = Finish::Done {
-                    result,
-                    seconds: seconds.clone(),
-                    landmarks: o.landmarks.clone(),
-                };
-                return finish(j, worker, job, &how, nothing, Recorded::Done(seconds));
-            };
-            let how = Finish::Done {
-                result: spec.results.join(&job.id),
-                seconds: seconds.clone(),
-                landmarks: o.landmarks.clone(),
-            };
-            let mut publish = || {
-                crate::station::pipeline::publish(&spec.results, &job.id, &staged)
-                    .map(|_| ())
-                    .map_err(|(p, e)| {
-                        std::io::Error::new(e.kind(), format!("{}: {e}", p.display()))
-                    })
-            };
-            let r = finish(j, worker, job, &how, &mut publish, Recorded::Done(seconds));
-            if !matches!(r, Ok(Recorded::Done(_))) {
-                let _ = std::fs::remove_dir_all(&staged);
-            }
-            if let Ok(Recorded::Done(s)) = &r {
-                info!(
-                    capture = %job.id,
-                    seconds = s.get("total").and_then(|v| v.as_f64()).unwrap_or(0.0),
-                    mean_distance_pct = o.mean_distance_relative.unwrap_or(f64::NAN) * 100.0,
-                    "done"
-                );
-            }
-            return r;
-        }
+        Ended::Outcome(o) if o.ok => return record_done(j, worker, job, o, spec),
         Ended::Outcome(o) => {
             let stage = o.stage.map_or_else(|| "unknown".into(), |s| s.to_string());
             let error = o.error.clone().unwrap_or_else(|| "failed".into());
@@ -287,6 +242,61 @@ pub fn record(
         }
     };
     finish(j, worker, job, &how, nothing, recorded)
+}
+
+/// A job that ended well: its staged result published and the job done in one step
+/// (the staged folder removed if that failed); a program that published by itself
+/// only recorded.
+fn record_done(
+    j: &mut Journal,
+    worker: &str,
+    job: &Job,
+    o: &ProcessOutcome,
+    spec: &JobSpec,
+) -> Result<Recorded, JournalError> {
+    let nothing = &mut || Ok(());
+    let seconds = o
+        .seconds
+        .as_ref()
+        .and_then(|s| serde_json::to_value(s).ok())
+        .unwrap_or_default();
+    let staged = o.result.clone().filter(|_| o.staged);
+    let Some(staged) = staged else {
+        // a program that published by itself: nothing to rename
+        let result = o
+            .result
+            .clone()
+            .unwrap_or_else(|| spec.results.join(&job.id));
+        let how = Finish::Done {
+            result,
+            seconds: seconds.clone(),
+            landmarks: o.landmarks.clone(),
+        };
+        return finish(j, worker, job, &how, nothing, Recorded::Done(seconds));
+    };
+    let how = Finish::Done {
+        result: spec.results.join(&job.id),
+        seconds: seconds.clone(),
+        landmarks: o.landmarks.clone(),
+    };
+    let mut publish = || {
+        crate::station::pipeline::publish(&spec.results, &job.id, &staged)
+            .map(|_| ())
+            .map_err(|(p, e)| std::io::Error::new(e.kind(), format!("{}: {e}", p.display())))
+    };
+    let r = finish(j, worker, job, &how, &mut publish, Recorded::Done(seconds));
+    if !matches!(r, Ok(Recorded::Done(_))) {
+        let _ = std::fs::remove_dir_all(&staged);
+    }
+    if let Ok(Recorded::Done(s)) = &r {
+        info!(
+            capture = %job.id,
+            seconds = s.get("total").and_then(|v| v.as_f64()).unwrap_or(0.0),
+            mean_distance_pct = o.mean_distance_relative.unwrap_or(f64::NAN) * 100.0,
+            "done"
+        );
+    }
+    r
 }
 
 fn finish(

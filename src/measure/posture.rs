@@ -204,52 +204,9 @@ fn skinning_fit(
                 }
             }
         }
-        // bones meet at their joints (true of every skinned posture, so no bias), and
-        // each bone's linear part is tied to its parent's with the weight of a few
-        // vertices: a part the skin hardly shows (a neck inside the shoulders, a flat
-        // ear) moves with its parent rather than as noise
-        for (b, p) in parents.iter().enumerate() {
-            let Some(p) = *p else {
-                for i in 0..3 {
-                    a[(4 * b + i, 4 * b + i)] += 1e-9 * tie_linear;
-                }
-                continue;
-            };
-            let mut g = vec![(4 * b + 3, 1.0), (4 * p + 3, -1.0)];
-            let off = joints[b] - joints[p];
-            g.extend((0..3).map(|i| (4 * p + i, -off[i])));
-            for &(i, gi) in &g {
-                for &(j, gj) in &g {
-                    a[(i, j)] += tie_joint * gi * gj;
-                }
-            }
-            for i in 0..3 {
-                let (bi, pi) = (4 * b + i, 4 * p + i);
-                a[(bi, bi)] += tie_linear;
-                a[(pi, pi)] += tie_linear;
-                a[(bi, pi)] -= tie_linear;
-                a[(pi, bi)] -= tie_linear;
-            }
-        }
+        add_ties(&mut a, parents, joints, tie_joint, tie_linear);
         let sol = a.cholesky()?.solve(&rhs);
-        fits = (0..nb)
-            .map(|b| {
-                let mut linear = Matrix3::zeros();
-                let mut translation = V3::zeros();
-                for d in 0..3 {
-                    for i in 0..3 {
-                        linear[(d, i)] = sol[(4 * b + i, d)];
-                    }
-                    translation[d] = sol[(4 * b + 3, d)];
-                }
-                let translation = translation - linear * joints[b];
-                BoneFit {
-                    linear,
-                    translation,
-                    rotation: polar_rotation(&linear),
-                }
-            })
-            .collect();
+        fits = bone_fits(&sol, joints);
         if fits.iter().any(|f| {
             !f.linear
                 .iter()
@@ -279,6 +236,64 @@ fn skinning_fit(
         }
     }
     Some(fits)
+}
+
+/// The ties added to the normal equations `a`: bones meet at their joints (true of
+/// every skinned posture, so no bias), and each bone's linear part is tied to its
+/// parent's with the weight of a few vertices: a part the skin hardly shows (a neck
+/// inside the shoulders, a flat ear) moves with its parent rather than as noise.
+fn add_ties(
+    a: &mut DMatrix<f64>,
+    parents: &[Option<usize>],
+    joints: &[V3],
+    tie_joint: f64,
+    tie_linear: f64,
+) {
+    for (b, p) in parents.iter().enumerate() {
+        let Some(p) = *p else {
+            for i in 0..3 {
+                a[(4 * b + i, 4 * b + i)] += 1e-9 * tie_linear;
+            }
+            continue;
+        };
+        let mut g = vec![(4 * b + 3, 1.0), (4 * p + 3, -1.0)];
+        let off = joints[b] - joints[p];
+        g.extend((0..3).map(|i| (4 * p + i, -off[i])));
+        for &(i, gi) in &g {
+            for &(j, gj) in &g {
+                a[(i, j)] += tie_joint * gi * gj;
+            }
+        }
+        for i in 0..3 {
+            let (bi, pi) = (4 * b + i, 4 * p + i);
+            a[(bi, bi)] += tie_linear;
+            a[(pi, pi)] += tie_linear;
+            a[(bi, pi)] -= tie_linear;
+            a[(pi, bi)] -= tie_linear;
+        }
+    }
+}
+
+/// Each bone's affine fit from the solution (its transform about its own joint).
+fn bone_fits(sol: &DMatrix<f64>, joints: &[V3]) -> Vec<BoneFit> {
+    (0..sol.nrows() / 4)
+        .map(|b| {
+            let mut linear = Matrix3::zeros();
+            let mut translation = V3::zeros();
+            for d in 0..3 {
+                for i in 0..3 {
+                    linear[(d, i)] = sol[(4 * b + i, d)];
+                }
+                translation[d] = sol[(4 * b + 3, d)];
+            }
+            let translation = translation - linear * joints[b];
+            BoneFit {
+                linear,
+                translation,
+                rotation: polar_rotation(&linear),
+            }
+        })
+        .collect()
 }
 
 /// The rotation nearest `m` (its polar decomposition's), a proper one even if `m`

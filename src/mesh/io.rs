@@ -346,25 +346,13 @@ fn read_ply_header(path: &str, bytes: &[u8]) -> Result<PlyHeader, FileError> {
                 let el = elements
                     .last_mut()
                     .ok_or_else(|| line_err(path, header_lines, "property before any element"))?;
-                let bad = || {
+                let prop = parse_property(&tok).ok_or_else(|| {
                     line_err(
                         path,
                         header_lines,
                         format!("malformed property line '{line}'"),
                     )
-                };
-                let prop = if tok.get(1) == Some(&"list") {
-                    let count = tok.get(2).and_then(|s| Scalar::parse(s)).ok_or_else(bad)?;
-                    let item = tok.get(3).and_then(|s| Scalar::parse(s)).ok_or_else(bad)?;
-                    let name = tok.get(4).ok_or_else(bad)?.to_string();
-                    Property::List { name, count, item }
-                } else {
-                    let ty = tok.get(1).and_then(|s| Scalar::parse(s)).ok_or_else(bad)?;
-                    Property::Scalar {
-                        name: tok.get(2).ok_or_else(bad)?.to_string(),
-                        ty,
-                    }
-                };
+                })?;
                 el.props.push(prop);
             }
             Some("end_header") => break,
@@ -384,6 +372,23 @@ fn read_ply_header(path: &str, bytes: &[u8]) -> Result<PlyHeader, FileError> {
         lines: header_lines,
         body_start: pos,
     })
+}
+
+/// A header's `property` line, split into words: a scalar (`property TYPE NAME`) or a
+/// list (`property list COUNT_TYPE ITEM_TYPE NAME`); `None` when malformed.
+fn parse_property(tok: &[&str]) -> Option<Property> {
+    if tok.get(1) == Some(&"list") {
+        let count = tok.get(2).and_then(|s| Scalar::parse(s))?;
+        let item = tok.get(3).and_then(|s| Scalar::parse(s))?;
+        let name = tok.get(4)?.to_string();
+        Some(Property::List { name, count, item })
+    } else {
+        let ty = tok.get(1).and_then(|s| Scalar::parse(s))?;
+        Some(Property::Scalar {
+            name: tok.get(2)?.to_string(),
+            ty,
+        })
+    }
 }
 
 /// One row of `el`: its scalar properties into `scalars` (by property index), the
