@@ -45,6 +45,8 @@ pub enum JobError {
     Daemon(#[from] crate::daemon::DaemonError),
     #[error(transparent)]
     StereoRig(#[from] crate::stereo::rig::RigError),
+    #[error(transparent)]
+    Calibration(#[from] crate::stereo::calibrate::CalibrationError),
     #[error("{0}")]
     Reconstruct(String),
     #[error(transparent)]

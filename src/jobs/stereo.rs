@@ -340,7 +340,7 @@ pub fn calibrate_placement(
                 ))
             };
             let view = crate::stereo::calibrate::board_pose(k, img.as_raw(), cols, rows, square)
-                .map_err(&named)?
+                .map_err(|e| named(e.to_string()))?
                 .ok_or_else(|| {
                     named(format!(
                         "the {cols}x{rows} board is not in view; every pod must see the whole board"
@@ -894,9 +894,8 @@ pub fn calibrate(
         .file_name()
         .map(|n| n.to_string_lossy().to_string())
         .unwrap_or_else(|| "pod".into());
-    let (pod, report) = crate::stereo::calibrate::calibrate(&pairs, w, h, cols, rows, square, &id)
-        .map_err(JobError::Usage)?;
-    let yaml = crate::stereo::calibrate::full_yaml(&pod, None).map_err(JobError::Usage)?;
+    let (pod, report) = crate::stereo::calibrate::calibrate(&pairs, w, h, cols, rows, square, &id)?;
+    let yaml = crate::stereo::calibrate::full_yaml(&pod, None)?;
     write_atomic(out, yaml.as_bytes())?;
     Ok(report)
 }

@@ -52,15 +52,47 @@ impl std::fmt::Display for CalibrationReport {
 /// Fewest pixels a square spans in the searched copy for OpenCV to find the corners.
 const MIN_SQUARE_PIXELS: u32 = 4;
 
+/// What calibrating, reading or writing a pod's calibration refused.
+#[derive(Debug, thiserror::Error)]
+pub enum CalibrationError {
+    /// the chessboard asked for cannot be found in these images (its size, its square,
+    /// its symmetry)
+    #[error("{0}")]
+    Board(String),
+    #[error(
+        "the board ({cols}x{rows} inner corners) was found in only {found} of {views} views; at least 4 are needed"
+    )]
+    TooFewViews {
+        cols: u32,
+        rows: u32,
+        found: usize,
+        views: usize,
+    },
+    /// a calibration file that is not one: its shape, a missing or malformed matrix, a
+    /// value that cannot describe a camera
+    #[error("{path}: {msg}")]
+    File { path: String, msg: String },
+    #[error("{0}")]
+    Read(#[from] crate::files::FileError),
+    #[error("OpenCV: {0}")]
+    OpenCv(#[from] opencv::Error),
+}
+
 /// Refuses a board that cannot be seen in a `width` x `height` image (fewer than
 /// [`MIN_SQUARE_PIXELS`] per square in the searched copy) or a square size that is not a
 /// positive length, before OpenCV is asked: a huge board would have it allocate the
 /// board's corners until memory runs out, and its exceptions then cannot be caught.
-fn check_board(cols: u32, rows: u32, square: f64, width: u32, height: u32) -> Result<(), String> {
+fn check_board(
+    cols: u32,
+    rows: u32,
+    square: f64,
+    width: u32,
+    height: u32,
+) -> Result<(), CalibrationError> {
     if !(square.is_finite() && square > 0.0) {
-        return Err(format!(
+        return Err(CalibrationError::Board(format!(
             "the chessboard's square size must be a positive length in metres, got {square}"
-        ));
+        )));
     }
     let scale = (width as f64 / 640.0).max(1.0);
     let (w, h) = (
@@ -70,11 +102,11 @@ fn check_board(cols: u32, rows: u32, square: f64, width: u32, height: u32) -> Re
     let fits =
         |corners: u32, pixels: u64| (corners as u64 + 1) * MIN_SQUARE_PIXELS as u64 <= pixels;
     if cols < 3 || rows < 3 || !fits(cols, w) || !fits(rows, h) {
-        return Err(format!(
+        return Err(CalibrationError::Board(format!(
             "a {cols}x{rows} board (inner corners) cannot be found in {width}x{height} images: \
              it needs 3 or more corners each way and at least {MIN_SQUARE_PIXELS} pixels per \
              square at {w}x{h}, where the corners are searched"
-        ));
+        )));
     }
     Ok(())
 }
@@ -162,9 +194,9 @@ pub fn calibrate(
     rows: u32,
     square: f64,
     id: &str,
-) -> Result<(Pod, CalibrationReport), String> {
+) -> Result<(Pod, CalibrationReport), CalibrationError> {
     check_board(cols, rows, square, width, height)?;
-    let run = || -> opencv::Result<Result<(Pod, CalibrationReport), String>> {
+    let run = || -> opencv::Result<Result<(Pod, CalibrationReport), CalibrationError>> {
         let object = board_points(cols, rows, square);
         let (mut obj, mut left, mut right) = (
             Vector::<Vector<Point3f>>::new(),
@@ -185,11 +217,12 @@ pub fn calibrate(
             }
         }
         if used.len() < 4 {
-            return Ok(Err(format!(
-                "the board ({cols}x{rows} inner corners) was found in only {} of {} views; at least 4 are needed",
-                used.len(),
-                pairs.len()
-            )));
+            return Ok(Err(CalibrationError::TooFewViews {
+                cols,
+                rows,
+                found: used.len(),
+                views: pairs.len(),
+            }));
         }
         let size = Size::new(width as i32, height as i32);
         let crit = TermCriteria::new(core::TermCriteria_COUNT + core::TermCriteria_EPS, 100, 1e-9)?;
@@ -204,26 +237,7 @@ pub fn calibrate(
         calib3d::calibrate_camera(
             &obj, &left, size, &mut m1, &mut d1, &mut rv, &mut tv, flags, crit,
         )?;
-        // per-view errors of the left camera
-        let mut per_view_left = Vec::new();
-        for v in 0..obj.len() {
-            let mut proj = Vector::<Point2f>::new();
-            calib3d::project_points_def(
-                &obj.get(v)?,
-                &rv.get(v)?,
-                &tv.get(v)?,
-                &m1,
-                &d1,
-                &mut proj,
-            )?;
-            let seen = left.get(v)?;
-            let e: f64 = proj
-                .iter()
-                .zip(seen.iter())
-                .map(|(a, b)| ((a.x - b.x) as f64).powi(2) + ((a.y - b.y) as f64).powi(2))
-                .sum();
-            per_view_left.push((e / proj.len() as f64).sqrt());
-        }
+        let per_view_left = reprojection_errors(&obj, &left, (&rv, &tv), (&m1, &d1))?;
         let (mut rv2, mut tv2) = (Vector::<Mat>::new(), Vector::<Mat>::new());
         calib3d::calibrate_camera(
             &obj, &right, size, &mut m2, &mut d2, &mut rv2, &mut tv2, flags, crit,
@@ -273,12 +287,36 @@ pub fn calibrate(
         };
         Ok(Ok((pod, report)))
     };
-    run().map_err(|e| format!("OpenCV: {e}"))?
+    run()?
+}
+
+/// Each view's RMS reprojection error (pixels) of one camera: its board points `obj`
+/// projected with the view's pose (`rv`, `tv`) and the camera (`m`, `d`), against the
+/// corners seen.
+fn reprojection_errors(
+    obj: &Vector<Vector<Point3f>>,
+    seen_corners: &Vector<Vector<Point2f>>,
+    (rv, tv): (&Vector<Mat>, &Vector<Mat>),
+    (m1, d1): (&Mat, &Mat),
+) -> opencv::Result<Vec<f64>> {
+    let mut errors = Vec::new();
+    for v in 0..obj.len() {
+        let mut proj = Vector::<Point2f>::new();
+        calib3d::project_points_def(&obj.get(v)?, &rv.get(v)?, &tv.get(v)?, m1, d1, &mut proj)?;
+        let seen = seen_corners.get(v)?;
+        let e: f64 = proj
+            .iter()
+            .zip(seen.iter())
+            .map(|(a, b)| ((a.x - b.x) as f64).powi(2) + ((a.y - b.y) as f64).powi(2))
+            .sum();
+        errors.push((e / proj.len() as f64).sqrt());
+    }
+    Ok(errors)
 }
 
 /// The pod's calibration with everything OpenCV's stereo tools read: M1 D1 M2 D2 R T,
 /// the essential and fundamental matrices E F, and the rectification R1 R2 P1 P2 Q.
-pub fn full_yaml(pod: &Pod, rig: Option<&str>) -> Result<String, String> {
+pub fn full_yaml(pod: &Pod, rig: Option<&str>) -> Result<String, CalibrationError> {
     let run = || -> opencv::Result<String> {
         let rect = super::reconstruct::rectification(pod)?;
         let (r1, r2, p1, p2, q) = (rect.r1, rect.r2, rect.p1, rect.p2, rect.q);
@@ -317,7 +355,7 @@ pub fn full_yaml(pod: &Pod, rig: Option<&str>) -> Result<String, String> {
         }
         Ok(s)
     };
-    run().map_err(|e| format!("OpenCV: {e}"))
+    Ok(run()?)
 }
 
 /// What a calibration file says about where it belongs, when it says it.
@@ -364,20 +402,25 @@ pub fn cv_words(e: &opencv::Error) -> String {
 /// file of 100,000 brackets overflows its stack.
 const MAX_YAML_DEPTH: usize = 32;
 
+/// Why a text is not given to OpenCV's YAML parser.
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct YamlShape(String);
+
 /// Refuses what OpenCV's YAML parser should not be given: NUL bytes (its strings end
 /// there) and nesting deeper than [`MAX_YAML_DEPTH`], in brackets, indentation or a run
 /// of `- ` on one line. Quoted text and comments are not counted.
-pub fn check_yaml_shape(text: &str) -> Result<(), String> {
+pub fn check_yaml_shape(text: &str) -> Result<(), YamlShape> {
     if text.contains('\0') {
-        return Err("holds a NUL byte: not a calibration file".into());
+        return Err(YamlShape("holds a NUL byte: not a calibration file".into()));
     }
     let mut depth = 0usize;
     for (n, line) in text.lines().enumerate() {
         let deep = |what: &str| {
-            Err(format!(
+            Err(YamlShape(format!(
                 "line {}: {what} nests deeper than {MAX_YAML_DEPTH} levels; a calibration file nests two",
                 n + 1
-            ))
+            )))
         };
         let body = line.trim_start_matches(' ');
         if (line.len() - body.len()) / 2 > MAX_YAML_DEPTH {
@@ -419,21 +462,25 @@ pub fn read_yaml(
     left_pose: Pose,
     width: u32,
     height: u32,
-) -> Result<(Pod, CalibrationOrigin), String> {
+) -> Result<(Pod, CalibrationOrigin), CalibrationError> {
     let name = path.display().to_string();
     // read once, checked, and parsed from memory: the file OpenCV parses is the one
     // checked, and a shape its recursive parser cannot take never reaches it
-    let text = crate::files::read_text_limited(path, 1 << 20).map_err(|e| e.to_string())?;
-    check_yaml_shape(&text).map_err(|e| format!("{name}: {e}"))?;
-    let run = || -> opencv::Result<Result<(Pod, CalibrationOrigin), String>> {
+    let text = crate::files::read_text_limited(path, 1 << 20)?;
+    let refused = |msg: String| CalibrationError::File {
+        path: name.clone(),
+        msg,
+    };
+    check_yaml_shape(&text).map_err(|e| refused(e.to_string()))?;
+    let run = || -> opencv::Result<Result<(Pod, CalibrationOrigin), CalibrationError>> {
         let fs = core::FileStorage::new(
             &text,
             core::FileStorage_Mode::READ as i32 | core::FileStorage_Mode::MEMORY as i32,
             "",
         )?;
         if !fs.is_opened()? {
-            return Ok(Err(format!(
-                "{name}: cannot be opened as an OpenCV calibration file"
+            return Ok(Err(refused(
+                "cannot be opened as an OpenCV calibration file".into(),
             )));
         }
         let text = |key: &str| -> opencv::Result<Option<String>> {
@@ -462,7 +509,7 @@ pub fn read_yaml(
         for key in ["M1", "D1", "M2", "D2", "R", "T"] {
             let m = fs.get(key)?.mat()?;
             if m.empty() {
-                return Ok(Err(format!("{name}: no {key} matrix")));
+                return Ok(Err(refused(format!("no {key} matrix"))));
             }
             let mut f = Mat::default();
             m.convert_to(&mut f, core::CV_64F, 1.0, 0.0)?;
@@ -471,12 +518,12 @@ pub fn read_yaml(
         let sizes = [(3, 3), (1, 5), (3, 3), (1, 5), (3, 3), (3, 1)];
         for (k, (m, (r, c))) in mats.iter().zip(sizes).enumerate() {
             if m.total() != r * c {
-                return Ok(Err(format!(
-                    "{name}: {} has {} values, expected {}",
+                return Ok(Err(refused(format!(
+                    "{} has {} values, expected {}",
                     ["M1", "D1", "M2", "D2", "R", "T"][k],
                     m.total(),
                     r * c
-                )));
+                ))));
             }
         }
         let t = mats[5].data_typed::<f64>()?;
@@ -489,54 +536,61 @@ pub fn read_yaml(
             t: V3::new(t[0], t[1], t[2]),
         };
         if let Err(why) = check_pod(&pod) {
-            return Ok(Err(format!("{name}: {why}")));
+            return Ok(Err(refused(why.0)));
         }
         Ok(Ok((pod, origin)))
     };
     run().map_err(|e| {
-        format!(
-            "{name}: not a calibration OpenCV can read: {}",
+        refused(format!(
+            "not a calibration OpenCV can read: {}",
             cv_words(&e)
-        )
+        ))
     })?
 }
+
+/// What makes a calibration unable to describe two cameras.
+struct PodProblem(String);
 
 /// A calibration that cannot describe two cameras is refused where it is read, naming
 /// the value: otherwise a zero focal length or a broken rotation shows up much later as
 /// "the disparity map is empty" and is blamed on the images.
-fn check_pod(pod: &Pod) -> Result<(), String> {
+fn check_pod(pod: &Pod) -> Result<(), PodProblem> {
     for (side, k) in [("M1 (left)", &pod.left), ("M2 (right)", &pod.right)] {
         let values = [k.fx, k.fy, k.cx, k.cy];
         if !values.iter().chain(&k.dist).all(|v| v.is_finite()) {
-            return Err(format!(
+            return Err(PodProblem(format!(
                 "{side} or its distortion holds a value that is not a number"
-            ));
+            )));
         }
         if !(k.fx > 0.0 && k.fy > 0.0) {
-            return Err(format!(
+            return Err(PodProblem(format!(
                 "{side}: the focal length must be positive, got fx {} fy {}",
                 k.fx, k.fy
-            ));
+            )));
         }
         if !(0.0..=k.width as f64).contains(&k.cx) || !(0.0..=k.height as f64).contains(&k.cy) {
-            return Err(format!(
+            return Err(PodProblem(format!(
                 "{side}: the principal point ({}, {}) lies outside the {} x {} image",
                 k.cx, k.cy, k.width, k.height
-            ));
+            )));
         }
     }
     if !pod.r.iter().chain(pod.t.iter()).all(|v| v.is_finite()) {
-        return Err("R or T holds a value that is not a number".into());
+        return Err(PodProblem(
+            "R or T holds a value that is not a number".into(),
+        ));
     }
     let ortho = (pod.r.transpose() * pod.r - nalgebra::Matrix3::identity()).norm();
     if ortho > 1e-3 || pod.r.determinant() < 0.0 {
-        return Err(format!(
+        return Err(PodProblem(format!(
             "R is not a rotation (|R^T R - I| = {ortho:.2e}, det {:.3})",
             pod.r.determinant()
-        ));
+        )));
     }
     if !(pod.t.norm() > 0.0) {
-        return Err("T is zero: the two cameras of a pod need a baseline".into());
+        return Err(PodProblem(
+            "T is zero: the two cameras of a pod need a baseline".into(),
+        ));
     }
     Ok(())
 }
@@ -579,11 +633,11 @@ pub fn board_pose(
     cols: u32,
     rows: u32,
     square: f64,
-) -> Result<Option<BoardView>, String> {
+) -> Result<Option<BoardView>, CalibrationError> {
     if (cols + rows).is_multiple_of(2) {
-        return Err(format!(
+        return Err(CalibrationError::Board(format!(
             "a {cols}x{rows} board looks the same from both ends; placement needs one odd and one even count of inner corners (e.g. 9x6)"
-        ));
+        )));
     }
     check_board(cols, rows, square, k.width, k.height)?;
     let run = || -> opencv::Result<Option<BoardView>> {
@@ -680,7 +734,7 @@ pub fn board_pose(
         }
         Ok(best)
     };
-    run().map_err(|e| format!("OpenCV: {e}"))
+    Ok(run()?)
 }
 
 /// Where a placement board lies in the rig: face up, its long side (the `cols` corners)

@@ -247,12 +247,20 @@ impl Reconstruction {
                 pod.left.width,
                 pod.left.height,
             )
-            .map_err(|msg| RigError::Calibration {
-                path: f.display().to_string(),
-                msg: msg
-                    .strip_prefix(&format!("{}: ", f.display()))
-                    .unwrap_or(&msg)
-                    .to_string(),
+            .map_err(|e| {
+                let msg = match e {
+                    crate::stereo::calibrate::CalibrationError::File { msg, .. } => msg,
+                    // the reader's own message names the file
+                    other => {
+                        let msg = other.to_string();
+                        msg.strip_prefix(&format!("{}: ", f.display()))
+                            .map_or(msg.clone(), str::to_string)
+                    }
+                };
+                RigError::Calibration {
+                    path: f.display().to_string(),
+                    msg,
+                }
             })?;
             let other = |why: String| {
                 refuse(format!(

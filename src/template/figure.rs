@@ -529,23 +529,24 @@ const BAND: usize = 4;
 /// radii vary along their axes, so it is not exactly a distance): the band's margin.
 const FIELD_SLOPE: f64 = 1.5;
 
-/// Marching tetrahedra (six per grid cube, sharing the main diagonal, so neighbouring
-/// cubes split their faces alike and the surface is closed); the field found exactly only
-/// near the surface, on a grid `band` times coarser first (1: everywhere).
-fn mesh_sdf(skel: &Skeleton, lo: V3, hi: V3, h: f64, band: usize) -> Mesh {
+/// The skeleton's field at every node of the grid from `lo` with step `h` and `dims`
+/// nodes, found on a grid `band` times coarser first: a node whose nearest coarse node
+/// is far from the surface (its distance beyond what the field can change over the
+/// gap, with room to spare) lies on no edge the surface crosses, and takes the coarse
+/// value: only its sign is read.
+fn sampled_field(
+    skel: &Skeleton,
+    lo: V3,
+    (nx, ny, nz): (usize, usize, usize),
+    h: f64,
+    band: usize,
+) -> Vec<f64> {
     use rayon::prelude::*;
-    let dims = ((hi - lo) / h).map(|d| d.ceil() as usize + 1);
-    let (nx, ny, nz) = (dims.x, dims.y, dims.z);
-    let node = |i: usize, j: usize, k: usize| (k * ny + j) * nx + i;
     let pos = |id: usize| {
         let (i, j, k) = (id % nx, (id / nx) % ny, id / (nx * ny));
         lo + V3::new(i as f64, j as f64, k as f64) * h
     };
     let sdf = Field::new(skel);
-    // the field on a grid `band` times coarser first: a node whose nearest coarse node is
-    // far from the surface (its distance beyond what the field can change over the gap,
-    // with room to spare) lies on no edge the surface crosses, and takes the coarse
-    // value: only its sign is read
     let coarse_dims = (
         nx.div_ceil(band) + 1,
         ny.div_ceil(band) + 1,
@@ -563,7 +564,7 @@ fn mesh_sdf(skel: &Skeleton, lo: V3, hi: V3, h: f64, band: usize) -> Mesh {
         })
         .collect();
     let far = FIELD_SLOPE * (band as f64 / 2.0) * 3f64.sqrt() * h + 3.0 * h;
-    let field: Vec<f64> = (0..nx * ny * nz)
+    (0..nx * ny * nz)
         .into_par_iter()
         .map(|id| {
             let (i, j, k) = (id % nx, (id / nx) % ny, id / (nx * ny));
@@ -578,7 +579,21 @@ fn mesh_sdf(skel: &Skeleton, lo: V3, hi: V3, h: f64, band: usize) -> Mesh {
             // no value exactly zero: a zero would make degenerate triangles
             if f.abs() < 1e-9 * h { 1e-9 * h } else { f }
         })
-        .collect();
+        .collect()
+}
+
+/// Marching tetrahedra (six per grid cube, sharing the main diagonal, so neighbouring
+/// cubes split their faces alike and the surface is closed); the field found exactly only
+/// near the surface, on a grid `band` times coarser first (1: everywhere).
+fn mesh_sdf(skel: &Skeleton, lo: V3, hi: V3, h: f64, band: usize) -> Mesh {
+    let dims = ((hi - lo) / h).map(|d| d.ceil() as usize + 1);
+    let (nx, ny, nz) = (dims.x, dims.y, dims.z);
+    let node = |i: usize, j: usize, k: usize| (k * ny + j) * nx + i;
+    let pos = |id: usize| {
+        let (i, j, k) = (id % nx, (id / nx) % ny, id / (nx * ny));
+        lo + V3::new(i as f64, j as f64, k as f64) * h
+    };
+    let field = sampled_field(skel, lo, (nx, ny, nz), h, band);
     const TETS: [[usize; 4]; 6] = [
         [0, 1, 3, 7],
         [0, 1, 5, 7],
