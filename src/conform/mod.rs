@@ -320,33 +320,7 @@ impl ConformOptions {
                 self.scan_to_template
             ));
         }
-        for (name, v) in [
-            ("align.template_up", self.align.template_up),
-            ("align.scan_up", self.align.scan_up),
-            ("align.template_front", self.align.template_front),
-            ("align.scan_front", self.align.scan_front),
-        ] {
-            if let Some(u) =
-                v.filter(|u| !(u.iter().all(|c| c.is_finite()) && u.iter().any(|c| *c != 0.0)))
-            {
-                return bad(format!(
-                    "{name} must be a finite, non-zero direction, got {u:?}"
-                ));
-            }
-        }
-        if self.align.template_front.is_some() != self.align.scan_front.is_some() {
-            return bad(
-                "align.template_front and align.scan_front go together: the way the template \
-                 faces means nothing without the way the subject faces on the rig"
-                    .into(),
-            );
-        }
-        if !(self.align.front_within_deg > 0.0 && self.align.front_within_deg <= 180.0) {
-            return bad(format!(
-                "align.front_within_deg must be over 0 and at most 180 degrees, got {}",
-                self.align.front_within_deg
-            ));
-        }
+        self.validate_align()?;
         if !(0.0..=180.0).contains(&self.max_normal_angle) {
             return bad(format!(
                 "max_normal_angle must be 0-180 degrees, got {}",
@@ -377,6 +351,40 @@ impl ConformOptions {
                     "stiffness of group '{g}' must be positive, got {k}"
                 ));
             }
+        }
+        Ok(())
+    }
+
+    /// The alignment's hints: directions finite and non-zero, a front on both sides or
+    /// neither, the front's tolerance and the trimmed share in range.
+    fn validate_align(&self) -> Result<(), ConformError> {
+        let bad = |m: String| Err(ConformError::Options(m));
+        for (name, v) in [
+            ("align.template_up", self.align.template_up),
+            ("align.scan_up", self.align.scan_up),
+            ("align.template_front", self.align.template_front),
+            ("align.scan_front", self.align.scan_front),
+        ] {
+            if let Some(u) =
+                v.filter(|u| !(u.iter().all(|c| c.is_finite()) && u.iter().any(|c| *c != 0.0)))
+            {
+                return bad(format!(
+                    "{name} must be a finite, non-zero direction, got {u:?}"
+                ));
+            }
+        }
+        if self.align.template_front.is_some() != self.align.scan_front.is_some() {
+            return bad(
+                "align.template_front and align.scan_front go together: the way the template \
+                 faces means nothing without the way the subject faces on the rig"
+                    .into(),
+            );
+        }
+        if !(self.align.front_within_deg > 0.0 && self.align.front_within_deg <= 180.0) {
+            return bad(format!(
+                "align.front_within_deg must be over 0 and at most 180 degrees, got {}",
+                self.align.front_within_deg
+            ));
         }
         if !(0.3..=1.0).contains(&self.align.trim) {
             return bad(format!("align.trim must be 0.3-1, got {}", self.align.trim));

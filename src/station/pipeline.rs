@@ -661,6 +661,26 @@ impl Pipeline {
         })
     }
 
+    /// The result's preview (coloured by its distance to the scan) and what the capture
+    /// page's 3D viewer draws beside the meshes.
+    fn pictures(
+        &self,
+        conformed: &Mesh,
+        scan: &Mesh,
+        drawn: &[crate::measure::Drawn],
+    ) -> (image::RgbImage, super::view::View) {
+        let distance = distances_to_scan(conformed, scan);
+        let preview = preview(conformed, distance.as_deref());
+        let view = super::view::View::new(
+            conformed,
+            &self.template,
+            distance.as_deref(),
+            self.template_landmarks.as_deref(),
+            drawn,
+        );
+        (preview, view)
+    }
+
     /// Processes the capture set in `dir`: reads and checks it, reconstructs the scan,
     /// conforms the template onto it (aligned automatically, or by `scan_landmarks` that
     /// an operator placed on an earlier scan of this set, paired by name with the
@@ -757,15 +777,7 @@ impl Pipeline {
         seconds.score = t.elapsed().as_secs_f64();
 
         let t = Instant::now();
-        let distance = distances_to_scan(&conformed.mesh, &scan);
-        let preview = preview(&conformed.mesh, distance.as_deref());
-        let view = super::view::View::new(
-            &conformed.mesh,
-            &self.template,
-            distance.as_deref(),
-            self.template_landmarks.as_deref(),
-            &measured.drawn,
-        );
+        let (preview, view) = self.pictures(&conformed.mesh, &scan, &measured.drawn);
         seconds.preview = t.elapsed().as_secs_f64();
         seconds.total = t_all.elapsed().as_secs_f64();
         Ok(Processed {
