@@ -235,7 +235,8 @@ pub fn read_ply_bytes(path: &str, bytes: &[u8]) -> Result<Mesh, FileError> {
             }
         }
     }
-    rows.finish().map_err(|m| content_err(path, m))?;
+    rows.finish()
+        .map_err(|m| content_err(path, m.to_string()))?;
     if !seen_vertex {
         return Err(content_err(path, "no 'vertex' element"));
     }
@@ -399,7 +400,7 @@ fn read_row(
     keep_list: Option<usize>,
     scalars: &mut [f64],
     list: &mut Vec<f64>,
-) -> Result<(), String> {
+) -> Result<(), BodyError> {
     rows.start_row()?;
     for (k, p) in el.props.iter().enumerate() {
         match p {
@@ -407,7 +408,7 @@ fn read_row(
             Property::List { count, item, .. } => {
                 let n = rows.value(*count)?;
                 if !(0.0..=1_000_000.0).contains(&n) || n.fract() != 0.0 {
-                    return Err(format!("bad list length {n}"));
+                    return Err(BodyError::ListLength(n));
                 }
                 let keep = Some(k) == keep_list;
                 if keep {
@@ -431,16 +432,17 @@ fn push_polygon(
     idx: &[f64],
     nv: usize,
     have_vertices: bool,
-) -> Result<(), String> {
+) -> Result<(), BodyError> {
     if !have_vertices {
-        return Err("faces come before the vertices".into());
+        return Err(BodyError::FacesFirst);
     }
     let mut ids = Vec::with_capacity(idx.len());
     for &i in idx {
         if i < 0.0 || i.fract() != 0.0 || i >= nv as f64 {
-            return Err(format!(
-                "vertex index {i} out of range (the mesh has {nv} vertices)"
-            ));
+            return Err(BodyError::Index {
+                index: i,
+                vertices: nv,
+            });
         }
         ids.push(i as u32);
     }
@@ -450,11 +452,46 @@ fn push_polygon(
     Ok(())
 }
 
+/// What is wrong in a PLY file's body (the header's own errors name their line).
+#[derive(Debug, thiserror::Error)]
+enum BodyError {
+    #[error("file is truncated")]
+    Truncated,
+    #[error("file is truncated (line {0} is incomplete)")]
+    Incomplete(usize),
+    #[error("line {0}: too few values")]
+    TooFew(usize),
+    #[error("line {line}: '{token}' is not a number")]
+    NotANumber { line: usize, token: String },
+    #[error("line {line}: '{token}' is not an integer")]
+    NotAnInteger { line: usize, token: String },
+    #[error("line {line}: {got} values, expected {expected}")]
+    ValueCount {
+        line: usize,
+        got: usize,
+        expected: usize,
+    },
+    #[error("ascii body is not valid text")]
+    NotText,
+    #[error("{0} bytes follow the last element the header declares: the header's counts are wrong")]
+    TrailingBytes(usize),
+    #[error(
+        "line {0}: data after the last element the header declares: the header's counts are wrong"
+    )]
+    TrailingLine(usize),
+    #[error("bad list length {0}")]
+    ListLength(f64),
+    #[error("faces come before the vertices")]
+    FacesFirst,
+    #[error("vertex index {index} out of range (the mesh has {vertices} vertices)")]
+    Index { index: f64, vertices: usize },
+}
+
 trait RowSource {
-    fn start_row(&mut self) -> Result<(), String>;
-    fn value(&mut self, ty: Scalar) -> Result<f64, String>;
-    fn end_row(&mut self) -> Result<(), String>;
-    fn finish(&mut self) -> Result<(), String>;
+    fn start_row(&mut self) -> Result<(), BodyError>;
+    fn value(&mut self, ty: Scalar) -> Result<f64, BodyError>;
+    fn end_row(&mut self) -> Result<(), BodyError>;
+    fn finish(&mut self) -> Result<(), BodyError>;
 }
 
 struct BinaryRows<'a> {
@@ -463,29 +500,27 @@ struct BinaryRows<'a> {
 }
 
 impl RowSource for BinaryRows<'_> {
-    fn start_row(&mut self) -> Result<(), String> {
+    fn start_row(&mut self) -> Result<(), BodyError> {
         Ok(())
     }
-    fn value(&mut self, ty: Scalar) -> Result<f64, String> {
+    fn value(&mut self, ty: Scalar) -> Result<f64, BodyError> {
         let n = ty.size();
         if self.pos + n > self.body.len() {
-            return Err("file is truncated".into());
+            return Err(BodyError::Truncated);
         }
         let v = ty.read_le(&self.body[self.pos..self.pos + n]);
         self.pos += n;
         Ok(v)
     }
-    fn end_row(&mut self) -> Result<(), String> {
+    fn end_row(&mut self) -> Result<(), BodyError> {
         Ok(())
     }
-    fn finish(&mut self) -> Result<(), String> {
+    fn finish(&mut self) -> Result<(), BodyError> {
         // more data than the header declares: the counts are wrong, the file is not what
         // it says
         match self.body.len() - self.pos.min(self.body.len()) {
             0 => Ok(()),
-            n => Err(format!(
-                "{n} bytes follow the last element the header declares: the header's counts are wrong"
-            )),
+            n => Err(BodyError::TrailingBytes(n)),
         }
     }
 }
@@ -517,13 +552,13 @@ impl<'a> AsciiRows<'a> {
 }
 
 impl RowSource for AsciiRows<'_> {
-    fn start_row(&mut self) -> Result<(), String> {
+    fn start_row(&mut self) -> Result<(), BodyError> {
         if self.invalid_utf8 {
-            return Err("ascii body is not valid text".into());
+            return Err(BodyError::NotText);
         }
         loop {
             let Some((i, l)) = self.lines.next() else {
-                return Err("file is truncated".into());
+                return Err(BodyError::Truncated);
             };
             self.line = self.header_lines + i + 1;
             if !l.trim().is_empty() {
@@ -533,42 +568,42 @@ impl RowSource for AsciiRows<'_> {
             }
         }
     }
-    fn value(&mut self, ty: Scalar) -> Result<f64, String> {
+    fn value(&mut self, ty: Scalar) -> Result<f64, BodyError> {
         let Some(t) = self.tokens.get(self.next) else {
             let last = self.lines.peek().is_none();
             return Err(if last {
-                format!("file is truncated (line {} is incomplete)", self.line)
+                BodyError::Incomplete(self.line)
             } else {
-                format!("line {}: too few values", self.line)
+                BodyError::TooFew(self.line)
             });
         };
         self.next += 1;
-        let v: f64 = t
-            .parse()
-            .map_err(|_| format!("line {}: '{t}' is not a number", self.line))?;
+        let v: f64 = t.parse().map_err(|_| BodyError::NotANumber {
+            line: self.line,
+            token: t.to_string(),
+        })?;
         if !matches!(ty, Scalar::F32 | Scalar::F64) && v.fract() != 0.0 {
-            return Err(format!("line {}: '{t}' is not an integer", self.line));
+            return Err(BodyError::NotAnInteger {
+                line: self.line,
+                token: t.to_string(),
+            });
         }
         Ok(v)
     }
-    fn end_row(&mut self) -> Result<(), String> {
+    fn end_row(&mut self) -> Result<(), BodyError> {
         if self.next != self.tokens.len() {
-            return Err(format!(
-                "line {}: {} values, expected {}",
-                self.line,
-                self.tokens.len(),
-                self.next
-            ));
+            return Err(BodyError::ValueCount {
+                line: self.line,
+                got: self.tokens.len(),
+                expected: self.next,
+            });
         }
         Ok(())
     }
-    fn finish(&mut self) -> Result<(), String> {
+    fn finish(&mut self) -> Result<(), BodyError> {
         for (i, l) in self.lines.by_ref() {
             if !l.trim().is_empty() {
-                return Err(format!(
-                    "line {}: data after the last element the header declares: the header's counts are wrong",
-                    self.header_lines + i + 1
-                ));
+                return Err(BodyError::TrailingLine(self.header_lines + i + 1));
             }
         }
         Ok(())
