@@ -86,33 +86,67 @@ pub enum TriggerError {
     Disconnected { port: String, retry_ms: u64 },
 }
 
+/// A line from the box that is not a message of the protocol: reported, then skipped.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum LineError {
+    #[error("line of {0} bytes (at most {MAX_LINE})")]
+    TooLong(usize),
+    #[error("over-long line (more than {MAX_LINE} bytes) skipped")]
+    Skipped,
+    #[error("line with non-printable bytes")]
+    NonPrintable,
+    #[error("'{0}': a field is missing")]
+    MissingField(String),
+    #[error("'{line}': '{token}' is not a number")]
+    NotANumber { line: String, token: String },
+    #[error("'{0}': sequence too large")]
+    SequenceTooLarge(String),
+    #[error("'{line}': expected {expected} fields, found {found}")]
+    FieldCount {
+        line: String,
+        expected: usize,
+        found: usize,
+    },
+    #[error("'{0}': unknown event")]
+    UnknownEvent(String),
+    #[error("unknown message '{0}'")]
+    UnknownMessage(String),
+    #[error("empty line")]
+    Empty,
+}
+
 /// Parses one line from the box (without its newline).
-pub fn parse_line(line: &str) -> Result<BoxMessage, String> {
+pub fn parse_line(line: &str) -> Result<BoxMessage, LineError> {
     if line.len() > MAX_LINE {
-        return Err(format!("line of {} bytes (at most {MAX_LINE})", line.len()));
+        return Err(LineError::TooLong(line.len()));
     }
     if !line.bytes().all(|b| (0x20..0x7f).contains(&b)) {
-        return Err("line with non-printable bytes".into());
+        return Err(LineError::NonPrintable);
     }
+    let whole = || line.to_string();
     let tok: Vec<&str> = line.split_whitespace().collect();
-    let num = |i: usize| -> Result<u64, String> {
+    let num = |i: usize| -> Result<u64, LineError> {
         tok.get(i)
-            .ok_or_else(|| format!("'{line}': a field is missing"))?
+            .ok_or_else(|| LineError::MissingField(whole()))?
             .parse::<u64>()
-            .map_err(|_| format!("'{line}': '{}' is not a number", tok[i]))
+            .map_err(|_| LineError::NotANumber {
+                line: whole(),
+                token: tok[i].to_string(),
+            })
     };
-    let seq = |i: usize| -> Result<u32, String> {
-        num(i).and_then(|v| u32::try_from(v).map_err(|_| format!("'{line}': sequence too large")))
+    let seq = |i: usize| -> Result<u32, LineError> {
+        num(i).and_then(|v| u32::try_from(v).map_err(|_| LineError::SequenceTooLarge(whole())))
     };
     let rest = |i: usize| tok.get(i..).map(|t| t.join(" ")).unwrap_or_default();
     let exact = |n: usize| {
         if tok.len() == n {
             Ok(())
         } else {
-            Err(format!(
-                "'{line}': expected {n} fields, found {}",
-                tok.len()
-            ))
+            Err(LineError::FieldCount {
+                line: whole(),
+                expected: n,
+                found: tok.len(),
+            })
         }
     };
     Ok(match tok.first().copied() {
@@ -159,15 +193,15 @@ pub fn parse_line(line: &str) -> Result<BoxMessage, String> {
                 code: tok[2].into(),
                 text: rest(3),
             }),
-            _ => return Err(format!("'{line}': unknown event")),
+            _ => return Err(LineError::UnknownEvent(whole())),
         },
         Some("ERR") if tok.len() >= 3 => BoxMessage::Error {
             seq: if tok[1] == "-" { None } else { Some(seq(1)?) },
             code: tok[2].into(),
             text: rest(3),
         },
-        Some(other) => return Err(format!("unknown message '{other}'")),
-        None => return Err("empty line".into()),
+        Some(other) => return Err(LineError::UnknownMessage(other.to_string())),
+        None => return Err(LineError::Empty),
     })
 }
 
@@ -179,13 +213,11 @@ struct LineReader {
 
 impl LineReader {
     /// Takes bytes; returns complete lines and the problems met (over-long lines).
-    fn feed(&mut self, bytes: &[u8], lines: &mut Vec<Result<String, String>>) {
+    fn feed(&mut self, bytes: &[u8], lines: &mut Vec<Result<String, LineError>>) {
         for &b in bytes {
             if b == b'\n' {
                 if self.overflow {
-                    lines.push(Err(format!(
-                        "over-long line (more than {MAX_LINE} bytes) skipped"
-                    )));
+                    lines.push(Err(LineError::Skipped));
                 } else {
                     let s = String::from_utf8_lossy(&self.buf)
                         .trim_end_matches('\r')
@@ -208,7 +240,7 @@ pub struct TriggerBox<P: Read + Write> {
     port: P,
     name: String,
     reader: LineReader,
-    pending: VecDeque<Result<String, String>>,
+    pending: VecDeque<Result<String, LineError>>,
     /// events received while waiting for answers, oldest first
     pub events: VecDeque<BoxEvent>,
     /// lines that were garbage, over-long or unknown: reported, then skipped
@@ -272,7 +304,7 @@ impl<P: Read + Write> TriggerBox<P> {
     fn next_line(
         &mut self,
         deadline: Instant,
-    ) -> Result<Option<Result<String, String>>, TriggerError> {
+    ) -> Result<Option<Result<String, LineError>>, TriggerError> {
         loop {
             if let Some(l) = self.pending.pop_front() {
                 return Ok(Some(l));
@@ -313,7 +345,7 @@ impl<P: Read + Write> TriggerBox<P> {
             let msg = match line.and_then(|l| parse_line(&l)) {
                 Ok(m) => m,
                 Err(w) => {
-                    self.warnings.push(w);
+                    self.warnings.push(w.to_string());
                     continue;
                 }
             };
@@ -376,7 +408,7 @@ impl<P: Read + Write> TriggerBox<P> {
             match line.and_then(|l| parse_line(&l)) {
                 Ok(BoxMessage::Event(e)) => self.events.push_back(e),
                 Ok(m) => self.warnings.push(format!("unexpected {m:?}")),
-                Err(w) => self.warnings.push(w),
+                Err(w) => self.warnings.push(w.to_string()),
             }
         }
         Ok(self.events.drain(..).collect())
@@ -501,21 +533,25 @@ mod tests {
         assert!(
             parse_line("ACK seven 1")
                 .unwrap_err()
+                .to_string()
                 .contains("'seven' is not a number")
         );
         assert!(
             parse_line("ACK 1")
                 .unwrap_err()
+                .to_string()
                 .contains("expected 3 fields")
         );
         assert!(
             parse_line("WHAT 1")
                 .unwrap_err()
+                .to_string()
                 .contains("unknown message 'WHAT'")
         );
         assert!(
             parse_line("ACK 1 2\u{7}")
                 .unwrap_err()
+                .to_string()
                 .contains("non-printable")
         );
         let mut r = LineReader {
@@ -525,7 +561,7 @@ mod tests {
         let mut out = Vec::new();
         r.feed(&[b'x'; 300], &mut out);
         r.feed(b"\nPONG 5\n", &mut out);
-        assert!(out[0].as_ref().unwrap_err().contains("over-long"));
+        assert_eq!(out[0], Err(LineError::Skipped));
         assert_eq!(out[1], Ok("PONG 5".to_string()));
     }
 }
