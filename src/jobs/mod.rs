@@ -47,6 +47,14 @@ pub enum JobError {
     StereoRig(#[from] crate::stereo::rig::RigError),
     #[error(transparent)]
     Calibration(#[from] crate::stereo::calibrate::CalibrationError),
+    #[error(transparent)]
+    Truth(#[from] crate::stereo::truth::TruthError),
+    /// a truth read well that the result could not be scored against
+    #[error("{path}: {source}")]
+    Scoring {
+        path: String,
+        source: crate::stereo::truth::TruthError,
+    },
     #[error("{0}")]
     Reconstruct(String),
     #[error(transparent)]

@@ -573,7 +573,7 @@ pub fn disparity_scored(
         .map(|t| {
             crate::stereo::truth::read_truth(t.file, t.scale)
                 .map(|read| (t, read))
-                .map_err(JobError::Usage)
+                .map_err(JobError::from)
         })
         .transpose()?;
     let (l, r) = read_rectified_pair(left, right)?;
@@ -627,8 +627,10 @@ pub fn disparity_scored(
     };
     let score = truth
         .map(|(t, read)| {
-            crate::stereo::truth::score(&d, &read, t.min_x)
-                .map_err(|e| JobError::Usage(format!("{}: {e}", t.file.display())))
+            crate::stereo::truth::score(&d, &read, t.min_x).map_err(|source| JobError::Scoring {
+                path: t.file.display().to_string(),
+                source,
+            })
         })
         .transpose()?;
     write_atomic(out, &bytes)?;
@@ -649,9 +651,11 @@ pub fn score_disparity(
     scale: Option<f64>,
     min_x: u32,
 ) -> Result<crate::stereo::truth::TruthScore, JobError> {
-    let t = crate::stereo::truth::read_truth(truth, scale).map_err(JobError::Usage)?;
-    crate::stereo::truth::score(d, &t, min_x)
-        .map_err(|e| JobError::Usage(format!("{}: {e}", truth.display())))
+    let t = crate::stereo::truth::read_truth(truth, scale)?;
+    crate::stereo::truth::score(d, &t, min_x).map_err(|source| JobError::Scoring {
+        path: truth.display().to_string(),
+        source,
+    })
 }
 
 /// What `import-pair` wrote: the rig file, the calibration folder and the capture set.
@@ -710,7 +714,7 @@ pub fn import_pair(
         // parsed now, so that a truth of the wrong size is refused before anything is
         // written; copied as it was
         let bytes = crate::files::read_limited(t, crate::files::MAX_IMAGE_BYTES)?;
-        let parsed = crate::stereo::truth::parse_truth(t, &bytes, None).map_err(JobError::Usage)?;
+        let parsed = crate::stereo::truth::parse_truth(t, &bytes, None)?;
         if (parsed.width, parsed.height) != (w, h) {
             return Err(JobError::Usage(format!(
                 "{}: the truth is {} x {}, the images {w} x {h}",
@@ -787,9 +791,11 @@ pub fn score_scan(
             })?,
             None => &station.pods[0],
         };
-    let t = crate::stereo::truth::read_truth(truth, scale).map_err(JobError::Usage)?;
-    crate::stereo::truth::score_depth(&scan.vertices, p, &t)
-        .map_err(|e| JobError::Usage(format!("{}: {e}", truth.display())))
+    let t = crate::stereo::truth::read_truth(truth, scale)?;
+    crate::stereo::truth::score_depth(&scan.vertices, p, &t).map_err(|source| JobError::Scoring {
+        path: truth.display().to_string(),
+        source,
+    })
 }
 
 /// Renders chessboard calibration views for every pod of the rig: `out/<pod>/leftNN.png`

@@ -89,17 +89,48 @@ impl std::fmt::Display for DepthScore {
     }
 }
 
+/// Why a ground truth could not be read or scored against.
+#[derive(Debug, thiserror::Error)]
+pub enum TruthError {
+    #[error(transparent)]
+    Read(#[from] crate::files::FileError),
+    /// a file that is not a ground truth conformd reads
+    #[error("{path}: {msg}")]
+    Format { path: String, msg: String },
+    #[error("the truth is {} x {} but pod {pod}'s left camera gives {} x {}", truth.0, truth.1, camera.0, camera.1)]
+    PodSize {
+        truth: (u32, u32),
+        pod: String,
+        camera: (u32, u32),
+    },
+    #[error("the disparity map is {} x {} but the truth {} x {}", map.0, map.1, truth.0, truth.1)]
+    MapSize { map: (u32, u32), truth: (u32, u32) },
+    #[error("{got} confidences for {pixels} pixels")]
+    Confidences { got: usize, pixels: usize },
+    #[error("the truth has no known pixels in front of the camera; nothing to score")]
+    NothingInFront,
+    #[error("the scan covers none of the truth's {known} known pixels; nothing to score")]
+    NotCovered { known: usize },
+    #[error("the truth has no known pixels{}; nothing to score", from_column.map(|(x, w)| format!(" from column {x} on (the images are {w} wide)")).unwrap_or_default())]
+    NoKnownPixels { from_column: Option<(u32, u32)> },
+    #[error(
+        "the disparity map has no valid pixel where the truth's {known} are known; nothing to score"
+    )]
+    NoValidPixel { known: usize },
+}
+
 /// Scores scan points (rig frame) against a truth disparity of `pod`'s left image. The
 /// truth's depth is `f B / (d + doffs)`, `doffs` the right camera's principal point
 /// less the left's (Middlebury's convention; 0 for KITTI); lens distortion is applied
 /// when projecting, so the truth is taken to be of the image as recorded.
-pub fn score_depth(points: &[V3], pod: &Pod, truth: &Truth) -> Result<DepthScore, String> {
+pub fn score_depth(points: &[V3], pod: &Pod, truth: &Truth) -> Result<DepthScore, TruthError> {
     let k = &pod.left;
     if (k.width, k.height) != (truth.width, truth.height) {
-        return Err(format!(
-            "the truth is {} x {} but pod {}'s left camera gives {} x {}",
-            truth.width, truth.height, pod.id, k.width, k.height
-        ));
+        return Err(TruthError::PodSize {
+            truth: (truth.width, truth.height),
+            pod: pod.id.clone(),
+            camera: (k.width, k.height),
+        });
     }
     let (fb, doffs) = (k.fx * pod.baseline(), pod.right.cx - k.cx);
     let w = k.width as usize;
@@ -131,14 +162,10 @@ pub fn score_depth(points: &[V3], pod: &Pod, truth: &Truth) -> Result<DepthScore
     }
     let n = errors.len();
     if known == 0 {
-        return Err(
-            "the truth has no known pixels in front of the camera; nothing to score".into(),
-        );
+        return Err(TruthError::NothingInFront);
     }
     if n == 0 {
-        return Err(format!(
-            "the scan covers none of the truth's {known} known pixels; nothing to score"
-        ));
+        return Err(TruthError::NotCovered { known });
     }
     let share = |a: usize, of: usize| if of > 0 { a as f64 / of as f64 } else { 0.0 };
     errors.sort_by(f64::total_cmp);
@@ -164,33 +191,35 @@ pub fn score_depth(points: &[V3], pod: &Pod, truth: &Truth) -> Result<DepthScore
 /// Reads a ground truth: `.pfm` (Middlebury 2014: float, rows bottom-up, inf unknown), or
 /// `.png`, 0 unknown, divided by `scale`: by default 256 for a 16-bit PNG (KITTI) and 4
 /// for an 8-bit one (Middlebury 2001-2006 quarter-size sets).
-pub fn read_truth(path: &Path, scale: Option<f64>) -> Result<Truth, String> {
-    let bytes = crate::files::read_limited(path, crate::files::MAX_IMAGE_BYTES)
-        .map_err(|e| e.to_string())?;
+pub fn read_truth(path: &Path, scale: Option<f64>) -> Result<Truth, TruthError> {
+    let bytes = crate::files::read_limited(path, crate::files::MAX_IMAGE_BYTES)?;
     parse_truth(path, &bytes, scale)
 }
 
 /// [`read_truth`] of a file's bytes already read; `path` gives its type and its name in
 /// errors.
-pub fn parse_truth(path: &Path, bytes: &[u8], scale: Option<f64>) -> Result<Truth, String> {
-    let name = path.display();
+pub fn parse_truth(path: &Path, bytes: &[u8], scale: Option<f64>) -> Result<Truth, TruthError> {
+    let bad = |msg: String| TruthError::Format {
+        path: path.display().to_string(),
+        msg,
+    };
     let ext = path
         .extension()
         .and_then(|e| e.to_str())
         .unwrap_or("")
         .to_ascii_lowercase();
     match ext.as_str() {
-        "pfm" => parse_pfm(bytes).map_err(|e| format!("{name}: {e}")),
+        "pfm" => parse_pfm(bytes).map_err(bad),
         "png" => {
             let img = image::load_from_memory_with_format(bytes, image::ImageFormat::Png)
-                .map_err(|e| format!("{name}: {e}"))?;
+                .map_err(|e| bad(e.to_string()))?;
             let sixteen = matches!(
                 img.color(),
                 image::ColorType::L16 | image::ColorType::La16 | image::ColorType::Rgb16
             );
             let scale = scale.unwrap_or(if sixteen { 256.0 } else { 4.0 });
             if !(scale > 0.0 && scale.is_finite()) {
-                return Err(format!("{name}: the truth scale must be positive"));
+                return Err(bad("the truth scale must be positive".into()));
             }
             let g = img.to_luma16();
             // to_luma16 stretches 8-bit values by 257: back to the file's own numbers
@@ -211,8 +240,8 @@ pub fn parse_truth(path: &Path, bytes: &[u8], scale: Option<f64>) -> Result<Trut
                     .collect(),
             })
         }
-        _ => Err(format!(
-            "{name}: a ground truth is read from .pfm or .png (16-bit /256, 8-bit /4)"
+        _ => Err(bad(
+            "a ground truth is read from .pfm or .png (16-bit /256, 8-bit /4)".into(),
         )),
     }
 }
@@ -277,12 +306,12 @@ fn parse_pfm(bytes: &[u8]) -> Result<Truth, String> {
 }
 
 /// Scores `d` against `truth` over the known pixels at column `min_x` or beyond.
-pub fn score(d: &Disparity, truth: &Truth, min_x: u32) -> Result<TruthScore, String> {
+pub fn score(d: &Disparity, truth: &Truth, min_x: u32) -> Result<TruthScore, TruthError> {
     if (d.width, d.height) != (truth.width, truth.height) {
-        return Err(format!(
-            "the disparity map is {} x {} but the truth {} x {}",
-            d.width, d.height, truth.width, truth.height
-        ));
+        return Err(TruthError::MapSize {
+            map: (d.width, d.height),
+            truth: (truth.width, truth.height),
+        });
     }
     let (mut known, mut valid, mut bad1, mut bad2, mut abs) = (0usize, 0usize, 0usize, 0usize, 0.0);
     for (k, (&v, &t)) in d.values.iter().zip(&truth.values).enumerate() {
@@ -299,19 +328,12 @@ pub fn score(d: &Disparity, truth: &Truth, min_x: u32) -> Result<TruthScore, Str
         }
     }
     if known == 0 {
-        return Err(format!(
-            "the truth has no known pixels{}; nothing to score",
-            if min_x > 0 {
-                format!(" from column {min_x} on (the images are {} wide)", d.width)
-            } else {
-                String::new()
-            }
-        ));
+        return Err(TruthError::NoKnownPixels {
+            from_column: (min_x > 0).then_some((min_x, d.width)),
+        });
     }
     if valid == 0 {
-        return Err(format!(
-            "the disparity map has no valid pixel where the truth's {known} are known; nothing to score"
-        ));
+        return Err(TruthError::NoValidPixel { known });
     }
     let share = |n: usize, of: usize| if of > 0 { n as f64 / of as f64 } else { 0.0 };
     Ok(TruthScore {
@@ -333,13 +355,12 @@ pub fn score_at_coverage(
     truth: &Truth,
     min_x: u32,
     coverage: f64,
-) -> Result<TruthScore, String> {
+) -> Result<TruthScore, TruthError> {
     if confidence.len() != d.values.len() {
-        return Err(format!(
-            "{} confidences for {} pixels",
-            confidence.len(),
-            d.values.len()
-        ));
+        return Err(TruthError::Confidences {
+            got: confidence.len(),
+            pixels: d.values.len(),
+        });
     }
     let counted = |k: usize| (k as u32 % d.width) >= min_x && !truth.values[k].is_nan();
     let known = (0..d.values.len()).filter(|&k| counted(k)).count();
