@@ -7,11 +7,32 @@ use std::path::{Path, PathBuf};
 /// Longest name accepted: far beyond any real id, short enough for every file system.
 pub const MAX_NAME: usize = 128;
 
+/// A name or a line of text refused; `what` names the thing in the sentence.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum NameError {
+    #[error("{what} '{name}' must be 1 to {MAX_NAME} characters long")]
+    Length { what: String, name: String },
+    /// `name` as shown (escaped)
+    #[error(
+        "{what} '{name}' is not a plain name (letters, digits, '-', '_' and '.', not starting with '.')"
+    )]
+    NotPlain { what: String, name: String },
+    #[error("{what} must be one line of plain text: it holds U+{code:04X}")]
+    NotOneLine { what: String, code: u32 },
+}
+
+// for the readers whose own errors are sentences yet (a manifest's, a rig file's)
+impl From<NameError> for String {
+    fn from(e: NameError) -> String {
+        e.to_string()
+    }
+}
+
 /// Checks that free text (a review's reason) reads as one line as written: no control
 /// character, no line or paragraph separator (U+2028, U+2029) and no bidirectional
 /// control (U+061C, U+200E, U+200F, U+202A-U+202E, U+2066-U+2069), which would break a
 /// log line or a CSV row, or show other text than is stored.
-pub fn check_one_line(what: &str, text: &str) -> Result<(), String> {
+pub fn check_one_line(what: &str, text: &str) -> Result<(), NameError> {
     let bad = |c: char| {
         c.is_control()
             || matches!(
@@ -22,10 +43,10 @@ pub fn check_one_line(what: &str, text: &str) -> Result<(), String> {
             || ('\u{2066}'..='\u{2069}').contains(&c)
     };
     match text.chars().find(|&c| bad(c)) {
-        Some(c) => Err(format!(
-            "{what} must be one line of plain text: it holds U+{:04X}",
-            c as u32
-        )),
+        Some(c) => Err(NameError::NotOneLine {
+            what: what.into(),
+            code: c as u32,
+        }),
         None => Ok(()),
     }
 }
@@ -34,24 +55,25 @@ pub fn check_one_line(what: &str, text: &str) -> Result<(), String> {
 /// digits, `-`, `_` and `.`, not starting with a dot (so never `.`, `..`, a hidden file or
 /// a partial set). Returns the reason when it is not; `what` names the thing in the
 /// sentence (e.g. "camera id").
-pub fn check_plain_name(what: &str, name: &str) -> Result<(), String> {
+pub fn check_plain_name(what: &str, name: &str) -> Result<(), NameError> {
     let ok_char = |c: char| c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.');
     if name.is_empty() || name.len() > MAX_NAME {
-        return Err(format!(
-            "{what} '{name}' must be 1 to {MAX_NAME} characters long"
-        ));
+        return Err(NameError::Length {
+            what: what.into(),
+            name: name.into(),
+        });
     }
     if name.starts_with('.') || !name.chars().all(ok_char) {
-        return Err(format!(
-            "{what} '{}' is not a plain name (letters, digits, '-', '_' and '.', not starting with '.')",
-            name.escape_default()
-        ));
+        return Err(NameError::NotPlain {
+            what: what.into(),
+            name: name.escape_default().to_string(),
+        });
     }
     Ok(())
 }
 
 /// `dir/name` for a checked plain name.
-pub fn join_plain(dir: &Path, what: &str, name: &str) -> Result<PathBuf, String> {
+pub fn join_plain(dir: &Path, what: &str, name: &str) -> Result<PathBuf, NameError> {
     check_plain_name(what, name)?;
     Ok(dir.join(name))
 }

@@ -128,7 +128,7 @@ fn internal(e: impl std::fmt::Display) -> ApiError {
 
 fn checked_id(id: &str) -> Api<()> {
     crate::paths::check_plain_name("capture id", id)
-        .map_err(|e| ApiError(StatusCode::BAD_REQUEST, e))
+        .map_err(|e| ApiError(StatusCode::BAD_REQUEST, e.to_string()))
 }
 
 fn job_or_404(shared: &Shared, id: &str) -> Api<Job> {
@@ -557,7 +557,7 @@ async fn trigger(Ctx(shared): Ctx<Arc<Shared>>, body: axum::body::Bytes) -> Api<
     };
     if let Some(s) = &req.subject {
         crate::paths::check_plain_name("subject", s)
-            .map_err(|e| ApiError(StatusCode::BAD_REQUEST, e))?;
+            .map_err(|e| ApiError(StatusCode::BAD_REQUEST, e.to_string()))?;
     }
     let tx = shared.capture.as_ref().ok_or_else(|| {
         ApiError(
@@ -643,7 +643,7 @@ async fn review(
         r#"{"verdict": "accepted"} or {"verdict": "rejected", "reason": "..."}"#,
     )?;
     let review = Review::new(req.verdict, req.reason, super::journal::now())
-        .map_err(|e| ApiError(StatusCode::BAD_REQUEST, e))?;
+        .map_err(|e| ApiError(StatusCode::BAD_REQUEST, e.to_string()))?;
     let dir = finished_result(job, "only a finished result can be reviewed")?;
     let written = review.clone();
     let ctx = shared.clone();
@@ -726,7 +726,7 @@ async fn place_landmarks(
             .and_then(|b| crate::mesh::io::mesh_from_bytes(&dir.join("scan.ply"), &b))
             .map_err(|e| conflict(e.to_string()))?;
         let lms = crate::station::placed::check(&req.landmarks, &names, &scan)
-            .map_err(|e| ApiError(StatusCode::BAD_REQUEST, e))?;
+            .map_err(|e| ApiError(StatusCode::BAD_REQUEST, e.to_string()))?;
         std::fs::create_dir_all(&folder).map_err(|e| {
             conflict(format!(
                 "{}: {e}: the station keeps placed landmarks in this folder",
@@ -1273,7 +1273,7 @@ fn measurement_table(r: &serde_json::Value) -> String {
 /// The finished results of one subject, oldest first, with their reports.
 fn subject_results(shared: &Shared, tag: &str) -> Api<Vec<(Job, serde_json::Value)>> {
     crate::paths::check_plain_name("subject", tag)
-        .map_err(|e| ApiError(StatusCode::BAD_REQUEST, e))?;
+        .map_err(|e| ApiError(StatusCode::BAD_REQUEST, e.to_string()))?;
     let mut jobs: Vec<Job> = shared
         .journal()
         .list(Some(State::Done), 100_000)

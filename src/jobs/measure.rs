@@ -323,7 +323,7 @@ pub fn model_weigh(
         .map(|e| e.path())
         .filter(|p| p.join("report.json").is_file())
         // a rejected result (or one whose review cannot be read) weighs nothing
-        .filter(|p| crate::station::review::left_out(p) == Ok(false))
+        .filter(|p| matches!(crate::station::review::left_out(p), Ok(false)))
         .collect();
     dirs.sort();
     for d in dirs {

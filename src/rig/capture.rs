@@ -222,7 +222,8 @@ impl Session {
     pub fn capture(&mut self, subject: Option<&str>) -> Result<CaptureSet, CaptureError> {
         // the subject goes into the manifest, the journal, page links and CSV exports
         if let Some(s) = subject {
-            crate::paths::check_plain_name("subject", s).map_err(CaptureError::Subject)?;
+            crate::paths::check_plain_name("subject", s)
+                .map_err(|e| CaptureError::Subject(e.to_string()))?;
         }
         let mut last = None;
         let attempts = self.options.retries + 1;

@@ -360,7 +360,7 @@ pub fn write_capture_set(
     };
     manifest.check().map_err(bad)?;
     for (name, _) in files {
-        check_plain_name("file", name).map_err(bad)?;
+        check_plain_name("file", name).map_err(|e| bad(e.to_string()))?;
     }
     let partial = root.join(format!(".{}.partial", manifest.id));
     let dir = root.join(&manifest.id);

@@ -337,7 +337,7 @@ pub fn publish(
             std::io::Error::new(std::io::ErrorKind::InvalidInput, m),
         )
     };
-    crate::paths::check_plain_name("capture id", id).map_err(invalid)?;
+    crate::paths::check_plain_name("capture id", id).map_err(|e| invalid(e.to_string()))?;
     // only a complete folder beside its final place (a rename never crosses disks)
     if staged.parent() != Some(results) {
         return Err(invalid(format!(
