@@ -4,6 +4,17 @@
 
 use plotters::prelude::*;
 
+/// A plot that could not be drawn: plotters' own error, in its words.
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct PlotError(String);
+
+impl PlotError {
+    fn of(e: impl std::fmt::Display) -> PlotError {
+        PlotError(e.to_string())
+    }
+}
+
 /// One line of a plot: its name, unit and points (x: days since the first result).
 pub struct Series {
     pub name: String,
@@ -51,7 +62,7 @@ fn draw_panel(
     series: &[&Series],
     desc: (&str, &str),
     text: bool,
-) -> Result<(), String> {
+) -> Result<(), PlotError> {
     let (mut x0, mut x1, mut y0, mut y1) = (
         f64::INFINITY,
         f64::NEG_INFINITY,
@@ -78,20 +89,20 @@ fn draw_panel(
     }
     let mut chart = b
         .build_cartesian_2d((x0 - xpad)..(x1 + xpad), (y0 - ypad)..(y1 + ypad))
-        .map_err(|e| e.to_string())?;
+        .map_err(PlotError::of)?;
     let mut mesh = chart.configure_mesh();
     if text {
         mesh.x_desc(desc.0).y_desc(desc.1);
     } else {
         mesh.disable_x_axis().disable_y_axis();
     }
-    mesh.draw().map_err(|e| e.to_string())?;
+    mesh.draw().map_err(PlotError::of)?;
     let colours = [RED, BLUE, GREEN, MAGENTA, CYAN, BLACK];
     for (k, s) in series.iter().enumerate() {
         let c = colours[k % colours.len()];
         let drawn = chart
             .draw_series(LineSeries::new(s.points.iter().copied(), c.stroke_width(2)))
-            .map_err(|e| e.to_string())?;
+            .map_err(PlotError::of)?;
         if text {
             drawn.label(s.name.clone()).legend(move |(x, y)| {
                 PathElement::new(vec![(x, y), (x + 16, y)], c.stroke_width(2))
@@ -99,7 +110,7 @@ fn draw_panel(
         }
         chart
             .draw_series(s.points.iter().map(|&p| Circle::new(p, 3, c.filled())))
-            .map_err(|e| e.to_string())?;
+            .map_err(PlotError::of)?;
     }
     if text {
         chart
@@ -108,7 +119,7 @@ fn draw_panel(
             .border_style(BLACK)
             .position(SeriesLabelPosition::UpperLeft)
             .draw()
-            .map_err(|e| e.to_string())?;
+            .map_err(PlotError::of)?;
     }
     Ok(())
 }
@@ -121,7 +132,7 @@ pub fn xy_png(
     series: &[Series],
     width: u32,
     height: u32,
-) -> Result<Vec<u8>, String> {
+) -> Result<Vec<u8>, PlotError> {
     let mine: Vec<&Series> = series.iter().collect();
     drawn_png(title, width, height, |area, text| {
         draw_panel(area, &mine, desc, text)
@@ -134,22 +145,26 @@ fn drawn_png(
     title: &str,
     width: u32,
     height: u32,
-    draw: impl FnOnce(&DrawingArea<BitMapBackend, plotters::coord::Shift>, bool) -> Result<(), String>,
-) -> Result<Vec<u8>, String> {
+    draw: impl FnOnce(
+        &DrawingArea<BitMapBackend, plotters::coord::Shift>,
+        bool,
+    ) -> Result<(), PlotError>,
+) -> Result<Vec<u8>, PlotError> {
     let text = font();
     let mut buf = vec![255u8; (width * height * 3) as usize];
     {
         let root = BitMapBackend::with_buffer(&mut buf, (width, height)).into_drawing_area();
         let area = if text {
             root.titled(title, ("sans-serif", 18))
-                .map_err(|e| e.to_string())?
+                .map_err(PlotError::of)?
         } else {
             root.clone()
         };
         draw(&area, text)?;
-        root.present().map_err(|e| e.to_string())?;
+        root.present().map_err(PlotError::of)?;
     }
-    let img = image::RgbImage::from_raw(width, height, buf).ok_or("plot buffer size")?;
+    let img = image::RgbImage::from_raw(width, height, buf)
+        .ok_or_else(|| PlotError("plot buffer size".into()))?;
     Ok(super::png_bytes(&img))
 }
 
@@ -162,7 +177,7 @@ pub fn history_png(
     series: &[Series],
     width: u32,
     height: u32,
-) -> Result<Vec<u8>, String> {
+) -> Result<Vec<u8>, PlotError> {
     let (lo, hi) = series
         .iter()
         .flat_map(|s| &s.points)
