@@ -245,7 +245,12 @@ fn disparity_rejects_bad_pairs_clearly() {
         num_disparities: 100,
         ..o
     };
-    assert!(bad.validate().unwrap_err().contains("multiple of 16"));
+    assert!(
+        bad.validate()
+            .unwrap_err()
+            .to_string()
+            .contains("multiple of 16")
+    );
 }
 
 #[test]

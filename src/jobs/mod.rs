@@ -49,6 +49,8 @@ pub enum JobError {
     Calibration(#[from] crate::stereo::calibrate::CalibrationError),
     #[error(transparent)]
     Truth(#[from] crate::stereo::truth::TruthError),
+    #[error(transparent)]
+    Disparity(#[from] crate::stereo::disparity::DisparityError),
     /// a truth read well that the result could not be scored against
     #[error("{path}: {source}")]
     Scoring {

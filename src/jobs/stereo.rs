@@ -568,7 +568,7 @@ pub fn disparity_scored(
             out.display()
         )));
     }
-    opts.validate().map_err(JobError::Usage)?;
+    opts.validate()?;
     let truth = truth
         .map(|t| {
             crate::stereo::truth::read_truth(t.file, t.scale)
@@ -598,8 +598,7 @@ pub fn disparity_scored(
         l.width(),
         l.height(),
         opts,
-    )
-    .map_err(JobError::Usage)?;
+    )?;
     if d.valid_share() == 0.0 {
         return Err(JobError::Usage(format!(
             "no pixel of {} found its match in {}: the pair has no texture to match (or is not a rectified pair)",

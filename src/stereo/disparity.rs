@@ -128,6 +128,16 @@ impl From<SgbmKeys> for SgbmOptions {
     }
 }
 
+/// Why a disparity map could not be computed.
+#[derive(Debug, thiserror::Error)]
+pub enum DisparityError {
+    /// a matcher setting out of its range, in words naming it
+    #[error("{0}")]
+    Options(String),
+    #[error("OpenCV: {0}")]
+    OpenCv(#[from] opencv::Error),
+}
+
 impl SgbmOptions {
     /// The defaults for what the cameras see.
     pub fn for_profile(profile: Profile) -> SgbmOptions {
@@ -185,51 +195,51 @@ impl SgbmOptions {
 }
 
 impl SgbmOptions {
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), DisparityError> {
         if self.num_disparities <= 0
             || self.num_disparities % 16 != 0
             || self.num_disparities > 1024
         {
-            return Err(format!(
+            return Err(DisparityError::Options(format!(
                 "num_disparities must be a multiple of 16 from 16 to 1024, got {}",
                 self.num_disparities
-            ));
+            )));
         }
         if self.block_size < 1 || self.block_size % 2 == 0 || self.block_size > 21 {
-            return Err(format!(
+            return Err(DisparityError::Options(format!(
                 "block_size must be odd, 1 to 21, got {}",
                 self.block_size
-            ));
+            )));
         }
         if !(self.cross_check >= 0.0 && self.cross_check.is_finite()) {
-            return Err(format!(
+            return Err(DisparityError::Options(format!(
                 "cross_check must be 0 (off) or a tolerance in pixels, got {}",
                 self.cross_check
-            ));
+            )));
         }
         if !(0.0..=1.0).contains(&self.min_confidence) {
-            return Err(format!(
+            return Err(DisparityError::Options(format!(
                 "min_confidence must be 0 to 1, got {}",
                 self.min_confidence
-            ));
+            )));
         }
         if self.edge_margin < 0 || self.occlusion_margin < 0 {
-            return Err(format!(
+            return Err(DisparityError::Options(format!(
                 "edge_margin and occlusion_margin are pixels, 0 or more, got {} and {}",
                 self.edge_margin, self.occlusion_margin
-            ));
+            )));
         }
         if self.contrast_window < 3 || self.contrast_window % 2 == 0 || self.contrast_window > 63 {
-            return Err(format!(
+            return Err(DisparityError::Options(format!(
                 "contrast_window must be odd, 3 to 63, got {}",
                 self.contrast_window
-            ));
+            )));
         }
         if self.subpixel_window < 3 || self.subpixel_window % 2 == 0 || self.subpixel_window > 31 {
-            return Err(format!(
+            return Err(DisparityError::Options(format!(
                 "subpixel_window must be odd, 3 to 31, got {}",
                 self.subpixel_window
-            ));
+            )));
         }
         Ok(())
     }
@@ -322,7 +332,7 @@ pub fn stock_sgbm(
     width: u32,
     height: u32,
     num_disparities: i32,
-) -> Result<Disparity, String> {
+) -> Result<Disparity, DisparityError> {
     let run = || -> opencv::Result<Disparity> {
         let (l, r) = (
             gray_mat(left, width, height)?,
@@ -345,7 +355,7 @@ pub fn stock_sgbm(
         sgbm.compute(&l, &r, &mut d)?;
         to_pixels(&d, 0)
     };
-    run().map_err(|e| format!("OpenCV: {e}"))
+    Ok(run()?)
 }
 
 /// Converts OpenCV's fixed-point disparity (16 x pixels, CV_16S) to pixels, invalid = inf.
@@ -663,7 +673,7 @@ pub fn disparity(
     width: u32,
     height: u32,
     o: &SgbmOptions,
-) -> Result<Disparity, String> {
+) -> Result<Disparity, DisparityError> {
     Ok(disparity_with_confidence(left, right, width, height, o)?.0)
 }
 
@@ -675,7 +685,7 @@ pub fn disparity_with_confidence(
     width: u32,
     height: u32,
     o: &SgbmOptions,
-) -> Result<(Disparity, Vec<f32>), String> {
+) -> Result<(Disparity, Vec<f32>), DisparityError> {
     o.validate()?;
     let run = || -> opencv::Result<(Disparity, Vec<f32>)> {
         let (l, r) = (
@@ -692,7 +702,7 @@ pub fn disparity_with_confidence(
             m.confidence,
         ))
     };
-    run().map_err(|e| format!("OpenCV: {e}"))
+    Ok(run()?)
 }
 
 /// Local mean and mean of squares of a grey image over `side` x `side` windows (CV_32F),
