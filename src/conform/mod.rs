@@ -848,8 +848,15 @@ fn conform_on_pool(
         }
         rep.limb_turns = best.turns.clone();
     }
-    let topology = (template_topology, scan);
-    finish(&elastic, best, global_report, topology, times, t_start)
+    finish(
+        &elastic,
+        best,
+        global_report,
+        template_topology,
+        scan,
+        times,
+        t_start,
+    )
 }
 
 /// The checks a template and the options must pass before any work.
@@ -1036,7 +1043,8 @@ fn finish(
     elastic: &Elastic,
     best: FittedHypothesis,
     global: GlobalReport,
-    (template_topology, scan): (topology::TopologyReport, &Mesh),
+    template_topology: topology::TopologyReport,
+    scan: &Mesh,
     mut times: StageTimes,
     t_start: Instant,
 ) -> Result<Conformed, ConformError> {

@@ -74,6 +74,14 @@ pub enum JobError {
     },
 }
 
+impl JobError {
+    /// A truth read from `path` that a result could not be scored against.
+    fn scoring(path: &Path) -> impl FnOnce(crate::stereo::truth::TruthError) -> JobError {
+        let path = path.display().to_string();
+        move |source| JobError::Scoring { path, source }
+    }
+}
+
 /// Largest options file read: a page of settings, with room to spare.
 const MAX_CONFIG_BYTES: u64 = 1 << 20;
 

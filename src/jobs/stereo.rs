@@ -626,10 +626,7 @@ pub fn disparity_scored(
     };
     let score = truth
         .map(|(t, read)| {
-            crate::stereo::truth::score(&d, &read, t.min_x).map_err(|source| JobError::Scoring {
-                path: t.file.display().to_string(),
-                source,
-            })
+            crate::stereo::truth::score(&d, &read, t.min_x).map_err(JobError::scoring(t.file))
         })
         .transpose()?;
     write_atomic(out, &bytes)?;
@@ -651,10 +648,7 @@ pub fn score_disparity(
     min_x: u32,
 ) -> Result<crate::stereo::truth::TruthScore, JobError> {
     let t = crate::stereo::truth::read_truth(truth, scale)?;
-    crate::stereo::truth::score(d, &t, min_x).map_err(|source| JobError::Scoring {
-        path: truth.display().to_string(),
-        source,
-    })
+    crate::stereo::truth::score(d, &t, min_x).map_err(JobError::scoring(truth))
 }
 
 /// What `import-pair` wrote: the rig file, the calibration folder and the capture set.
@@ -791,10 +785,7 @@ pub fn score_scan(
             None => &station.pods[0],
         };
     let t = crate::stereo::truth::read_truth(truth, scale)?;
-    crate::stereo::truth::score_depth(&scan.vertices, p, &t).map_err(|source| JobError::Scoring {
-        path: truth.display().to_string(),
-        source,
-    })
+    crate::stereo::truth::score_depth(&scan.vertices, p, &t).map_err(JobError::scoring(truth))
 }
 
 /// Renders chessboard calibration views for every pod of the rig: `out/<pod>/leftNN.png`
