@@ -53,7 +53,10 @@ fn main() {
                     "skeleton",
                     PostureRemoval::Skeleton(Box::new(s.template.clone()), s.kind),
                 ),
-                ("parts", PostureRemoval::for_figure(&s.template, &resolved)),
+                (
+                    "parts",
+                    PostureRemoval::for_figure(&s.template, s.kind, &resolved),
+                ),
             ];
             let art = measure::posture::Articulation::from_figure(&s.template, V3::z());
             // the generic template's own rig, as a station fits it

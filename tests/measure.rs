@@ -227,7 +227,7 @@ fn bad_definitions_are_refused_naming_the_measurement() {
     );
     refuse(
         "[[measurement]]\nname = \"h\"\nkind = \"height\"\npoint = \"withers\"\nposture_free = \"straightened\"\n",
-        "unknown variant `straightened`, expected `parts` or `as_measured`",
+        "unknown variant `straightened`, expected one of `parts`, `as_measured`, `skeleton`",
     );
     refuse("", "defines no measurement");
     refuse("[frame]\nfloor = 0.0\n", "defines no measurement");
@@ -756,7 +756,7 @@ fn a_measurement_marked_as_measured_keeps_its_raw_value_posture_free() {
             .unwrap()
             .resolve(&fig.mesh, &lms)
             .unwrap();
-        let removal = conformd::measure::PostureRemoval::for_figure(&fig, &r);
+        let removal = conformd::measure::PostureRemoval::for_figure(&fig, Kind::Body, &r);
         let raw = r.measure(&posed).unwrap();
         let free = removal.measure(&r, "posed", &posed).unwrap();
         (raw, free)
@@ -774,4 +774,64 @@ fn a_measurement_marked_as_measured_keeps_its_raw_value_posture_free() {
             value(&raw, name)
         );
     }
+}
+
+/// `posture_free = "skeleton"`: the value is measured on the result with the template's
+/// skeleton fitted and undone, so a subject the skeleton posed gets its rest neck back,
+/// where the same girth as measured or moved by the parts does not.
+#[test]
+fn a_measurement_marked_skeleton_is_measured_with_the_skeleton_undone() {
+    let fig = template::build(Kind::Body, 3000);
+    let lms = fig.landmarks();
+    let text = |how: &str| {
+        format!(
+            "[[measurement]]\nname = \"neck\"\nkind = \"girth\"\nat = [0.0, 0.0, 1.555]\n\
+             axis = [[\"shoulder_top_l\", \"shoulder_top_r\"], \"head_top\"]\n{how}\n\
+             [[measurement]]\nname = \"waist\"\nkind = \"girth\"\nat = [0.0, 0.0, 1.05]\n\
+             axis = [[\"hip_l\", \"hip_r\"], [\"shoulder_top_l\", \"shoulder_top_r\"]]\n"
+        )
+    };
+    let pose = template::pose(
+        Kind::Body,
+        &[("nod", 30.0), ("head_turn", 25.0), ("bend", 15.0)]
+            .map(|(k, v)| (k.to_string(), v))
+            .into(),
+    );
+    let posed = template::subject(&fig, Kind::Body, &BTreeMap::new(), &pose).unwrap();
+    let measure = |how: &str| {
+        let r = Definitions::parse(&text(how), "d")
+            .unwrap()
+            .resolve(&fig.mesh, &lms)
+            .unwrap();
+        let removal = conformd::measure::PostureRemoval::for_figure(&fig, Kind::Body, &r);
+        let rest = r.measure(&fig.mesh).unwrap();
+        let raw = r.measure(&posed).unwrap();
+        let free = removal.measure(&r, "posed", &posed).unwrap();
+        (rest, raw, free)
+    };
+    let (rest, raw, by_skeleton) = measure("posture_free = \"skeleton\"");
+    let (_, _, by_parts) = measure("");
+    let (_, _, as_measured) = measure("posture_free = \"as_measured\"");
+    let off = |ms: &[Measurement], name: &str| {
+        (value(ms, name) - value(&rest, name)).abs() / value(&rest, name)
+    };
+    assert!(
+        off(&by_skeleton, "neck") < 0.002,
+        "{}",
+        off(&by_skeleton, "neck")
+    );
+    for (how, ms) in [
+        ("raw", &raw),
+        ("parts", &by_parts),
+        ("as measured", &as_measured),
+    ] {
+        assert!(
+            off(ms, "neck") > 5.0 * off(&by_skeleton, "neck").max(0.001),
+            "{how}: neck {} off, the skeleton's {}",
+            off(ms, "neck"),
+            off(&by_skeleton, "neck")
+        );
+    }
+    // the other measurement keeps its own route (the parts)
+    assert_eq!(value(&by_skeleton, "waist"), value(&by_parts, "waist"));
 }

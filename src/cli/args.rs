@@ -507,11 +507,12 @@ pub struct MeasureArgs {
     #[arg(long)]
     pub definitions: Option<PathBuf>,
     /// a model with posture modes (`model posture`, `model build --posture`) for
-    /// --normalise-posture; without it a generic template's own skeleton is used
+    /// --normalise-posture; without it a generic template's own parts are used
     #[arg(long)]
     pub model: Option<PathBuf>,
-    /// also measure every mesh with its posture removed: the generic template's pose
-    /// parameters fitted and undone, or --model's posture modes taken out
+    /// also measure every mesh with its posture removed: each definition moved into
+    /// the mesh's posture by the generic template's parts (or as its `posture_free`
+    /// says), or --model's posture modes taken out
     #[arg(long)]
     pub normalise_posture: bool,
     /// write a CSV too: a row per mesh, a column per measurement

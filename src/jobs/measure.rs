@@ -19,6 +19,7 @@ pub fn posture_removal(
         (Some(p), _) => Ok(PostureRemoval::Model(Box::new(ShapeModel::load(p)?))),
         (None, Some(kind)) => Ok(PostureRemoval::for_figure(
             &template::build(kind, source.vertices.unwrap_or(10_000)),
+            kind,
             resolved,
         )),
         (None, None) => Err(JobError::Usage(

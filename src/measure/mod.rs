@@ -93,9 +93,13 @@ pub enum PostureFree {
     #[default]
     Parts,
     /// as measured: for a measurement the posture does not change but the parts' fit
-    /// would disturb (a section on a joint the parts on both sides pull at, a height
-    /// the legs stand to whatever the arms do), chosen where it repeats better
+    /// would disturb (a height the legs stand to whatever the arms do), chosen where it
+    /// repeats better
     AsMeasured,
+    /// on the result with the generic template's skeleton fitted and undone through
+    /// its skinning: for a section across a joint both bones' skin blends (the neck),
+    /// which a plane carried by either part cuts differently in every posture
+    Skeleton,
 }
 
 impl PostureFree {
@@ -528,6 +532,11 @@ impl Resolved {
         self.items.iter().map(|(n, ..)| n.clone()).collect()
     }
 
+    /// How each measurement's posture-free value is taken, in order.
+    pub fn routes(&self) -> Vec<PostureFree> {
+        self.items.iter().map(|(.., how)| *how).collect()
+    }
+
     /// Every measurement on `mesh` (the template's vertex order).
     pub fn measure(&self, mesh: &Mesh) -> Result<Vec<Measurement>, MeasureError> {
         Ok(self
@@ -546,7 +555,9 @@ impl Resolved {
     /// Every measurement on `mesh` with each definition moved into the posture `posed`
     /// (fitted to this mesh): sections cut where the parts carry their planes, lengths
     /// and heights with the joints' rotations taken out; areas, volumes and surface
-    /// paths as they are (a posture does not change them).
+    /// paths as they are (a posture does not change them). A measurement marked
+    /// `as_measured` or `skeleton` is as measured here (see [`PostureRemoval::measure`]
+    /// for the skeleton's).
     pub fn measure_posed(
         &self,
         mesh: &Mesh,
@@ -877,8 +888,13 @@ pub fn hull_loop(points: &[V3], n: &V3) -> Vec<V3> {
 /// How a result's posture is taken out of its measurements.
 pub enum PostureRemoval {
     /// a generic template's parts fitted to the result, each definition moved into the
-    /// subject's posture (see [`posture`]); the mesh is not deformed
-    Parts(Box<posture::Articulation>),
+    /// subject's posture (see [`posture`]); the mesh is not deformed. The template and
+    /// its kind serve the measurements marked `skeleton`.
+    Parts {
+        parts: Box<posture::Articulation>,
+        figure: Box<crate::template::figure::Figure>,
+        kind: crate::template::Kind,
+    },
     /// a generic template's own skeleton: its pose parameters fitted and undone by
     /// its skinning, then measured
     Skeleton(Box<crate::template::figure::Figure>, crate::template::Kind),
@@ -889,11 +905,16 @@ pub enum PostureRemoval {
 impl PostureRemoval {
     /// The station's and the CLI's way for a generic template: by its parts, which
     /// repeat best over postures (`cargo bench --bench repeatability`).
-    pub fn for_figure(fig: &crate::template::figure::Figure, resolved: &Resolved) -> Self {
-        PostureRemoval::Parts(Box::new(posture::Articulation::from_figure(
-            fig,
-            resolved.up,
-        )))
+    pub fn for_figure(
+        fig: &crate::template::figure::Figure,
+        kind: crate::template::Kind,
+        resolved: &Resolved,
+    ) -> Self {
+        PostureRemoval::Parts {
+            parts: Box::new(posture::Articulation::from_figure(fig, resolved.up)),
+            figure: Box::new(fig.clone()),
+            kind,
+        }
     }
 
     /// `m` with its posture removed (same vertex order, its shape and size kept); the
@@ -906,7 +927,7 @@ impl PostureRemoval {
             PostureRemoval::Skeleton(fig, kind) => {
                 crate::template::remove_posture(fig, *kind, m).map(|(m, _)| m)
             }
-            PostureRemoval::Parts(_) => {
+            PostureRemoval::Parts { .. } => {
                 Err("the parts method moves the definitions, not the mesh: use measure".into())
             }
         }
@@ -920,9 +941,26 @@ impl PostureRemoval {
         m: &Mesh,
     ) -> Result<Vec<Measurement>, String> {
         match self {
-            PostureRemoval::Parts(art) => {
-                let posed = art.fit(m)?;
-                resolved.measure_posed(m, &posed).map_err(|e| e.to_string())
+            PostureRemoval::Parts {
+                parts,
+                figure,
+                kind,
+            } => {
+                let posed = parts.fit(m)?;
+                let mut out = resolved
+                    .measure_posed(m, &posed)
+                    .map_err(|e| e.to_string())?;
+                let routes = resolved.routes();
+                if routes.contains(&PostureFree::Skeleton) {
+                    let (straight, _) = crate::template::remove_posture(figure, *kind, m)?;
+                    let on_straight = resolved.measure(&straight).map_err(|e| e.to_string())?;
+                    for ((o, s), how) in out.iter_mut().zip(on_straight).zip(routes) {
+                        if how == PostureFree::Skeleton {
+                            *o = s;
+                        }
+                    }
+                }
+                Ok(out)
             }
             _ => resolved
                 .measure(&self.apply(name, m)?)

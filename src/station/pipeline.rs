@@ -478,7 +478,9 @@ impl Measuring {
         let posture = match (&m.posture_model, figure, m.normalise_posture) {
             (_, _, false) => None,
             (Some(p), _, true) => Some(PostureRemoval::Model(Box::new(ShapeModel::load(p)?))),
-            (None, Some((_, fig)), true) => Some(PostureRemoval::for_figure(&fig, &resolved)),
+            (None, Some((kind, fig)), true) => {
+                Some(PostureRemoval::for_figure(&fig, kind, &resolved))
+            }
             (None, None, true) => None,
         };
         let weight = m
