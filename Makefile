@@ -4,13 +4,18 @@
 # fonts-dejavu-core: the labels of the subject history plots; libjs-three: the capture
 # page's 3D view (three.js served from /usr/share/javascript/three)
 APT_PACKAGES := libopencv-dev clang libclang-dev pkg-config libudev-dev fonts-dejavu-core libjs-three
+# `make deb`: dpkg-shlibdeps (dpkg-dev), strip (binutils), the manual page (help2man),
+# and lintian to check the package
+DEB_PACKAGES := dpkg-dev binutils help2man lintian
 # the status page's browser test runs Debian's headless Chromium; the journal and worker
-# tests start throwaway PostgreSQL clusters with Debian's server
-TEST_PACKAGES := chromium chromium-driver postgresql
+# tests start throwaway PostgreSQL clusters with Debian's server; the package's test
+# builds and checks the package (DEB_PACKAGES), installs it into a throwaway root
+# (fakeroot when not root) and verifies its units (systemd-analyze)
+TEST_PACKAGES := chromium chromium-driver postgresql $(DEB_PACKAGES) fakeroot systemd
 CARGO ?= cargo
 DEMO_OUT ?= demo-output
 
-.PHONY: all deps test-deps apt build lint test test-hardware verify-unit demo bench clean
+.PHONY: all deps test-deps apt build lint test test-hardware verify-unit demo bench deb clean
 
 all: build
 
@@ -71,6 +76,14 @@ verify-unit:
 # On a station with cameras: the test that needs a real V4L2 device (ignored by `test`).
 test-hardware: deps
 	$(CARGO) test --locked --profile ci --features test-hooks --test all v4l2_hardware:: -- --ignored
+
+# The Debian package of the release build (packaging/deb/build.sh), checked by lintian:
+# target/debian/conformd_<version>-1_<arch>.deb, installed with `apt install ./...deb`.
+deb: deps
+	@$(MAKE) --no-print-directory apt PACKAGES="$(DEB_PACKAGES)"
+	$(CARGO) build --locked --release
+	@deb=$$(sh packaging/deb/build.sh target/release/conformd target/debian) && \
+	lintian --fail-on error "$$deb" && echo "built $$deb (lintian: no errors)"
 
 demo: deps
 	$(CARGO) run --locked --release -- demo --out $(DEMO_OUT)

@@ -27,6 +27,8 @@ mod layering;
 mod measure;
 #[path = "mesh_io.rs"]
 mod mesh_io;
+#[path = "package.rs"]
+mod package;
 #[path = "paper_cases.rs"]
 mod paper_cases;
 #[path = "pipeline.rs"]
