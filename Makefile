@@ -7,15 +7,20 @@ APT_PACKAGES := libopencv-dev clang libclang-dev pkg-config libudev-dev fonts-de
 # `make deb`: dpkg-shlibdeps (dpkg-dev), strip (binutils), the manual page (help2man),
 # and lintian to check the package
 DEB_PACKAGES := dpkg-dev binutils help2man lintian
+# the trigger box's firmware (firmware/trigger-box) and the emulator it is tested in
+# (firmware/sim: simavr)
+FIRMWARE_PACKAGES := gcc-avr avr-libc binutils-avr libsimavr-dev
 # the status page's browser test runs Debian's headless Chromium; the journal and worker
 # tests start throwaway PostgreSQL clusters with Debian's server; the package's test
 # builds and checks the package (DEB_PACKAGES), installs it into a throwaway root
-# (fakeroot when not root) and verifies its units (systemd-analyze)
-TEST_PACKAGES := chromium chromium-driver postgresql $(DEB_PACKAGES) fakeroot systemd
+# (fakeroot when not root) and verifies its units (systemd-analyze); the firmware's
+# tests build it and run it in simavr (FIRMWARE_PACKAGES)
+TEST_PACKAGES := chromium chromium-driver postgresql $(DEB_PACKAGES) fakeroot systemd \
+	$(FIRMWARE_PACKAGES)
 CARGO ?= cargo
 DEMO_OUT ?= demo-output
 
-.PHONY: all deps test-deps apt build lint test test-hardware verify-unit demo bench deb clean
+.PHONY: all deps test-deps apt build lint test test-hardware verify-unit demo bench deb firmware clean
 
 all: build
 
@@ -85,6 +90,12 @@ deb: deps
 	@deb=$$(sh packaging/deb/build.sh target/release/conformd target/debian) && \
 	lintian --fail-on error "$$deb" && echo "built $$deb (lintian: no errors)"
 
+# The trigger box's firmware (build/trigger-box.hex for avrdude: README, "The reference
+# trigger box") and its emulator harness (firmware/sim/build/boxsim).
+firmware:
+	@$(MAKE) --no-print-directory apt PACKAGES="$(FIRMWARE_PACKAGES)"
+	$(MAKE) -C firmware
+
 demo: deps
 	$(CARGO) run --locked --release -- demo --out $(DEMO_OUT)
 
@@ -98,4 +109,5 @@ bench: test-deps
 
 clean:
 	$(CARGO) clean
+	$(MAKE) -C firmware clean
 	rm -rf $(DEMO_OUT)

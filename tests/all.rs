@@ -45,6 +45,8 @@ mod stereo;
 mod templates;
 #[path = "trigger_box.rs"]
 mod trigger_box;
+#[path = "trigger_firmware.rs"]
+mod trigger_firmware;
 #[path = "v4l2_hardware.rs"]
 mod v4l2_hardware;
 #[path = "virtual_rig.rs"]
