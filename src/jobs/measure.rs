@@ -213,7 +213,7 @@ pub fn model_posture(
         .map(|(i, p)| {
             template::subject(&fig, kind, &Default::default(), p)
                 .map(|m| (format!("posture {i}"), m))
-                .map_err(JobError::Usage)
+                .map_err(JobError::from)
         })
         .collect::<Result<Vec<_>, _>>()?;
     let model = ShapeModel::build(

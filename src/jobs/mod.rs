@@ -65,6 +65,9 @@ pub enum JobError {
     Pipeline(#[from] crate::station::PipelineError),
     #[error(transparent)]
     Stage(#[from] crate::station::StageError),
+    /// a template named wrongly or given parameters it does not have
+    #[error(transparent)]
+    Template(#[from] crate::template::TemplateError),
     #[error("{0}")]
     Usage(String),
     #[error("{path}: {source}")]

@@ -42,19 +42,16 @@ pub fn template(
         .iter()
         .map(|p| p.0)
         .collect();
-    let pose_params =
-        templates::parse_parameters(pose, &pose_names, "pose").map_err(JobError::Usage)?;
+    let pose_params = templates::parse_parameters(pose, &pose_names, "pose")?;
     let shape_names = templates::shape_parameters(kind);
-    let shape_params =
-        templates::parse_parameters(shape, &shape_names, "shape").map_err(JobError::Usage)?;
+    let shape_params = templates::parse_parameters(shape, &shape_names, "shape")?;
     let fig = templates::build(kind, vertices);
     let mut mesh = templates::subject(
         &fig,
         kind,
         &shape_params,
         &templates::pose(kind, &pose_params),
-    )
-    .map_err(JobError::Usage)?;
+    )?;
     mesh.groups = fig.mesh.groups.clone();
     mesh::write_mesh(out, &mesh)?;
     let landmarks = out.with_extension("landmarks");

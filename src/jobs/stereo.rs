@@ -71,16 +71,14 @@ fn simulate_into(
                 .iter()
                 .map(|p| p.0)
                 .collect();
-            let params =
-                templates::parse_parameters(pose, &names, "pose").map_err(JobError::Usage)?;
+            let params = templates::parse_parameters(pose, &names, "pose")?;
             let fig = templates::build(kind, 20_000);
             templates::subject(
                 &fig,
                 kind,
                 &std::collections::BTreeMap::new(),
                 &templates::pose(kind, &params),
-            )
-            .map_err(JobError::Usage)?
+            )?
         }
         _ => mesh::read_mesh(Path::new(subject))?,
     };

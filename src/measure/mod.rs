@@ -924,9 +924,9 @@ impl PostureRemoval {
             PostureRemoval::Model(model) => {
                 model.remove_posture(name, m).map_err(|e| e.to_string())
             }
-            PostureRemoval::Skeleton(fig, kind) => {
-                crate::template::remove_posture(fig, *kind, m).map(|(m, _)| m)
-            }
+            PostureRemoval::Skeleton(fig, kind) => crate::template::remove_posture(fig, *kind, m)
+                .map(|(m, _)| m)
+                .map_err(|e| e.to_string()),
             PostureRemoval::Parts { .. } => {
                 Err("the parts method moves the definitions, not the mesh: use measure".into())
             }
@@ -952,7 +952,8 @@ impl PostureRemoval {
                     .map_err(|e| e.to_string())?;
                 let routes = resolved.routes();
                 if routes.contains(&PostureFree::Skeleton) {
-                    let (straight, _) = crate::template::remove_posture(figure, *kind, m)?;
+                    let (straight, _) = crate::template::remove_posture(figure, *kind, m)
+                        .map_err(|e| e.to_string())?;
                     let on_straight = resolved.measure(&straight).map_err(|e| e.to_string())?;
                     for ((o, s), how) in out.iter_mut().zip(on_straight).zip(routes) {
                         if how == PostureFree::Skeleton {

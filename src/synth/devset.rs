@@ -506,13 +506,14 @@ pub fn captured_template_case(
             .iter()
             .map(|p| p.0)
             .collect();
-        let params = template::parse_parameters(p, &names, "pose")?;
+        let params = template::parse_parameters(p, &names, "pose").map_err(|e| e.to_string())?;
         template::subject(
             &fig,
             Kind::Pig,
             &std::collections::BTreeMap::new(),
             &template::pose(Kind::Pig, &params),
         )
+        .map_err(|e| e.to_string())
     };
     let a = posed("nod=8,leg_fl=12,tail=-10")?;
     let b = posed("swing=14,nod=-12,twist=6,leg_hl=-18,leg_fr=15,tail=25")?;

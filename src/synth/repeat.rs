@@ -116,7 +116,8 @@ pub fn subjects(part: Part, count: usize, names: &[&str]) -> Result<Vec<Subject>
                 .iter()
                 .enumerate()
             {
-                let mut subject = template::subject(&other, kind, &shape, pose)?;
+                let mut subject =
+                    template::subject(&other, kind, &shape, pose).map_err(|e| e.to_string())?;
                 let heading = rng.random_range(-15.0..15.0);
                 turned(&mut subject.vertices, heading);
                 postures.push(scanned(

@@ -11,6 +11,51 @@ use figure::{Figure, Pose, Skeleton};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
+/// What is wrong with a template's description, its parameters or a result given to it.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum TemplateError {
+    #[error("unknown template '{0}' (expected 'pig' or 'body')")]
+    UnknownKind(String),
+    #[error("template '{0}' is neither pig, body nor an existing mesh file")]
+    NotATemplate(String),
+    #[error(
+        "the generic {0} template brings its own groups; --template-groups is for a template mesh file"
+    )]
+    GroupsOfGeneric(String),
+    #[error("vertices = {0}: a generic template has {min} to {max} vertices", min = VERTICES.start(), max = VERTICES.end())]
+    Vertices(usize),
+    #[error("a generic template brings its own landmarks, groups and rig")]
+    GenericBringsItsOwn,
+    #[error("vertices is for a generic template, not a mesh file")]
+    VerticesOfMesh,
+    #[error("needs either generic = \"pig\" or \"body\", or mesh = \"FILE\" (not both)")]
+    NeitherOrBoth,
+    #[error("{what} '{part}': expected name=value")]
+    NotNameValue { what: String, part: String },
+    #[error("unknown {what} parameter '{name}' (known: {known})")]
+    UnknownParameter {
+        what: String,
+        name: String,
+        known: String,
+    },
+    #[error("{what} '{name}': '{value}' is not a number")]
+    NotANumber {
+        what: String,
+        name: String,
+        value: String,
+    },
+    #[error("{what} '{name}' = {value}: must be {min} to {max}")]
+    OutOfRange {
+        what: String,
+        name: String,
+        value: f64,
+        min: f64,
+        max: f64,
+    },
+    #[error("the mesh has {got} vertices, the template {expected}: not a result of this template")]
+    VertexCount { got: usize, expected: usize },
+}
+
 /// Where a station's template comes from: a generic one (`pig`, `body`) built at a
 /// resolution, or any user mesh with its landmark file and optional groups file (the
 /// paper: "one of the 3D shape samples can serve as a generic mesh directly").
@@ -43,48 +88,36 @@ impl TemplateSource {
 
     /// What a user names on the command line: `pig` or `body` (when no such file exists),
     /// else an existing mesh file.
-    pub fn named(name: &str, groups: Option<PathBuf>) -> Result<TemplateSource, String> {
+    pub fn named(name: &str, groups: Option<PathBuf>) -> Result<TemplateSource, TemplateError> {
         match name.parse::<Kind>() {
-            Ok(_) if !Path::new(name).exists() && groups.is_some() => Err(format!(
-                "the generic {name} template brings its own groups; --template-groups is for a template mesh file"
-            )),
+            Ok(_) if !Path::new(name).exists() && groups.is_some() => {
+                Err(TemplateError::GroupsOfGeneric(name.into()))
+            }
             Ok(kind) if !Path::new(name).exists() => Ok(TemplateSource::generic(kind)),
             _ if Path::new(name).exists() => Ok(TemplateSource {
                 mesh: Some(name.into()),
                 groups,
                 ..Default::default()
             }),
-            _ => Err(format!(
-                "template '{name}' is neither pig, body nor an existing mesh file"
-            )),
+            _ => Err(TemplateError::NotATemplate(name.into())),
         }
     }
 
     /// Exactly one of a generic template or a mesh; a resolution only for a generic one.
-    pub fn check(&self) -> Result<(), String> {
+    pub fn check(&self) -> Result<(), TemplateError> {
         match (&self.generic, &self.mesh) {
             (Some(_), None) => {
                 if let Some(v) = self.vertices.filter(|v| !VERTICES.contains(v)) {
-                    return Err(format!(
-                        "vertices = {v}: a generic template has {} to {} vertices",
-                        VERTICES.start(),
-                        VERTICES.end()
-                    ));
+                    return Err(TemplateError::Vertices(v));
                 }
                 if self.landmarks.is_some() || self.groups.is_some() || self.rig.is_some() {
-                    return Err(
-                        "a generic template brings its own landmarks, groups and rig".into(),
-                    );
+                    return Err(TemplateError::GenericBringsItsOwn);
                 }
                 Ok(())
             }
-            (None, Some(_)) if self.vertices.is_some() => {
-                Err("vertices is for a generic template, not a mesh file".into())
-            }
+            (None, Some(_)) if self.vertices.is_some() => Err(TemplateError::VerticesOfMesh),
             (None, Some(_)) => Ok(()),
-            _ => Err(
-                "needs either generic = \"pig\" or \"body\", or mesh = \"FILE\" (not both)".into(),
-            ),
+            _ => Err(TemplateError::NeitherOrBoth),
         }
     }
 
@@ -117,7 +150,7 @@ impl TemplateSource {
     /// is only warned about: the figure is built as without one.
     pub fn figure_cached(&self, cache: Option<&Path>) -> Result<Option<(Kind, Figure)>, FileError> {
         self.check()
-            .map_err(|e| FileError::content("[template]", e))?;
+            .map_err(|e| FileError::content("[template]", e.to_string()))?;
         let Some(kind) = self.generic else {
             return Ok(None);
         };
@@ -231,12 +264,12 @@ pub enum Kind {
 }
 
 impl std::str::FromStr for Kind {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
+    type Err = TemplateError;
+    fn from_str(s: &str) -> Result<Self, TemplateError> {
         match s {
             "pig" => Ok(Kind::Pig),
             "body" => Ok(Kind::Body),
-            _ => Err(format!("unknown template '{s}' (expected 'pig' or 'body')")),
+            _ => Err(TemplateError::UnknownKind(s.into())),
         }
     }
 }
@@ -442,35 +475,45 @@ pub fn parse_parameters(
     text: &str,
     known: &[&str],
     what: &str,
-) -> Result<BTreeMap<String, f64>, String> {
+) -> Result<BTreeMap<String, f64>, TemplateError> {
     let mut out = BTreeMap::new();
     for part in text.split(',').map(str::trim).filter(|p| !p.is_empty()) {
         let (k, v) = part
             .split_once('=')
-            .ok_or_else(|| format!("{what} '{part}': expected name=value"))?;
+            .ok_or_else(|| TemplateError::NotNameValue {
+                what: what.into(),
+                part: part.into(),
+            })?;
         let (k, v) = (k.trim(), v.trim());
         if !known.contains(&k) {
-            return Err(format!(
-                "unknown {what} parameter '{k}' (known: {})",
-                known.join(", ")
-            ));
+            return Err(TemplateError::UnknownParameter {
+                what: what.into(),
+                name: k.into(),
+                known: known.join(", "),
+            });
         }
         let x: f64 = v
             .parse()
             .ok()
             .filter(|x: &f64| x.is_finite())
-            .ok_or_else(|| format!("{what} '{k}': '{v}' is not a number"))?;
+            .ok_or_else(|| TemplateError::NotANumber {
+                what: what.into(),
+                name: k.into(),
+                value: v.into(),
+            })?;
         // beyond these a generic template folds over itself
         let range = match what {
             "shape" => SHAPE_FACTORS,
             _ => POSE_DEGREES,
         };
         if !range.contains(&x) {
-            return Err(format!(
-                "{what} '{k}' = {x}: must be {} to {}",
-                range.start(),
-                range.end()
-            ));
+            return Err(TemplateError::OutOfRange {
+                what: what.into(),
+                name: k.into(),
+                value: x,
+                min: *range.start(),
+                max: *range.end(),
+            });
         }
         out.insert(k.to_string(), x);
     }
@@ -566,11 +609,15 @@ pub fn reshape(
     fig: &Figure,
     kind: Kind,
     factors: &BTreeMap<String, f64>,
-) -> Result<Vec<V3>, String> {
+) -> Result<Vec<V3>, TemplateError> {
     let mut out = fig.mesh.vertices.clone();
     for (name, &f) in factors {
-        let field = shape_field(fig, kind, name)
-            .ok_or_else(|| format!("unknown shape parameter '{name}'"))?;
+        let field =
+            shape_field(fig, kind, name).ok_or_else(|| TemplateError::UnknownParameter {
+                what: "shape".into(),
+                name: name.clone(),
+                known: shape_parameters(kind).join(", "),
+            })?;
         for (o, d) in out.iter_mut().zip(field) {
             *o += d * (f - 1.0);
         }
@@ -584,7 +631,7 @@ pub fn subject(
     kind: Kind,
     shape: &BTreeMap<String, f64>,
     pose: &Pose,
-) -> Result<Mesh, String> {
+) -> Result<Mesh, TemplateError> {
     let mut reshaped = fig.clone();
     reshaped.mesh.vertices = reshape(fig, kind, shape)?;
     let mut m = fig.mesh.clone();
@@ -692,13 +739,16 @@ pub fn fit_posture(fig: &Figure, kind: Kind, x: &[V3]) -> PostureFit {
 /// A result of generic template `fig` with its posture removed: its pose fitted
 /// ([`fit_posture`]) and taken out joint by joint, then put back where it stood. Its
 /// shape (and size) stay.
-pub fn remove_posture(fig: &Figure, kind: Kind, mesh: &Mesh) -> Result<(Mesh, PostureFit), String> {
+pub fn remove_posture(
+    fig: &Figure,
+    kind: Kind,
+    mesh: &Mesh,
+) -> Result<(Mesh, PostureFit), TemplateError> {
     if mesh.vertices.len() != fig.mesh.vertices.len() {
-        return Err(format!(
-            "the mesh has {} vertices, the template {}: not a result of this template",
-            mesh.vertices.len(),
-            fig.mesh.vertices.len()
-        ));
+        return Err(TemplateError::VertexCount {
+            got: mesh.vertices.len(),
+            expected: fig.mesh.vertices.len(),
+        });
     }
     let fit = fit_posture(fig, kind, &mesh.vertices);
     let inv = fit.placement.inverse();

@@ -20,9 +20,7 @@ pub fn run(a: ConformArgs) -> Result<(), jobs::JobError> {
     } = a;
     let opts = jobs::conform_options(config.as_deref(), method)?;
     let mut template = match (template, &config) {
-        (Some(t), _) => {
-            TemplateSource::named(&t, template_groups).map_err(jobs::JobError::Usage)?
-        }
+        (Some(t), _) => TemplateSource::named(&t, template_groups).map_err(jobs::JobError::from)?,
         (None, Some(c)) => jobs::template_from_config(c)?,
         (None, None) => {
             return Err(jobs::JobError::Usage(

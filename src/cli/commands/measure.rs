@@ -18,7 +18,7 @@ pub fn run(a: MeasureArgs) -> Result<(), jobs::JobError> {
         repeatability,
     } = a;
     let mut source =
-        TemplateSource::named(&template, template_groups).map_err(jobs::JobError::Usage)?;
+        TemplateSource::named(&template, template_groups).map_err(jobs::JobError::from)?;
     if template_landmarks.is_some() {
         source.landmarks = template_landmarks;
     }
