@@ -148,13 +148,13 @@ pub fn measure_mesh(
     resolved: &Resolved,
     posture: Option<&PostureRemoval>,
 ) -> Result<MeasureReport, JobError> {
-    let bad = |e: crate::measure::MeasureError| JobError::Usage(format!("{name}: {e}"));
+    let bad = |source| JobError::Measure {
+        mesh: name.into(),
+        source,
+    };
     let measurements = resolved.measure(m).map_err(bad)?;
     let normalised = match posture {
-        Some(p) => Some(
-            p.measure(resolved, name, m)
-                .map_err(|e| JobError::Usage(format!("{name}: {e}")))?,
-        ),
+        Some(p) => Some(p.measure(resolved, name, m).map_err(bad)?),
         None => None,
     };
     Ok(MeasureReport {

@@ -65,6 +65,12 @@ pub enum JobError {
     Pipeline(#[from] crate::station::PipelineError),
     #[error(transparent)]
     Stage(#[from] crate::station::StageError),
+    /// a mesh that could not be measured
+    #[error("{mesh}: {source}")]
+    Measure {
+        mesh: String,
+        source: crate::measure::MeasureError,
+    },
     /// a template named wrongly or given parameters it does not have
     #[error(transparent)]
     Template(#[from] crate::template::TemplateError),

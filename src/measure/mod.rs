@@ -20,6 +20,18 @@ pub enum MeasureError {
     Definition { name: String, message: String },
     #[error("the mesh has {got} vertices, the template {expected}: not a result of this template")]
     VertexCount { got: usize, expected: usize },
+    /// a posture model's removal failed
+    #[error(transparent)]
+    Model(#[from] crate::model::ModelError),
+    /// the generic template's skeleton could not be undone on the mesh
+    #[error(transparent)]
+    Template(#[from] crate::template::TemplateError),
+    #[error("the parts method moves the definitions, not the mesh: use measure")]
+    PartsMoveDefinitions,
+    #[error("the mesh has no vertices")]
+    EmptyMesh,
+    #[error("the mesh's parts could not be fitted (degenerate mesh)")]
+    PartsNotFitted,
 }
 
 /// A place on the template: a landmark name, a vertex index, a position in template
@@ -919,17 +931,13 @@ impl PostureRemoval {
 
     /// `m` with its posture removed (same vertex order, its shape and size kept); the
     /// parts method measures without deforming and has no such mesh.
-    pub fn apply(&self, name: &str, m: &Mesh) -> Result<Mesh, String> {
+    pub fn apply(&self, name: &str, m: &Mesh) -> Result<Mesh, MeasureError> {
         match self {
-            PostureRemoval::Model(model) => {
-                model.remove_posture(name, m).map_err(|e| e.to_string())
+            PostureRemoval::Model(model) => Ok(model.remove_posture(name, m)?),
+            PostureRemoval::Skeleton(fig, kind) => {
+                Ok(crate::template::remove_posture(fig, *kind, m)?.0)
             }
-            PostureRemoval::Skeleton(fig, kind) => crate::template::remove_posture(fig, *kind, m)
-                .map(|(m, _)| m)
-                .map_err(|e| e.to_string()),
-            PostureRemoval::Parts { .. } => {
-                Err("the parts method moves the definitions, not the mesh: use measure".into())
-            }
+            PostureRemoval::Parts { .. } => Err(MeasureError::PartsMoveDefinitions),
         }
     }
 
@@ -939,7 +947,7 @@ impl PostureRemoval {
         resolved: &Resolved,
         name: &str,
         m: &Mesh,
-    ) -> Result<Vec<Measurement>, String> {
+    ) -> Result<Vec<Measurement>, MeasureError> {
         match self {
             PostureRemoval::Parts {
                 parts,
@@ -947,14 +955,11 @@ impl PostureRemoval {
                 kind,
             } => {
                 let posed = parts.fit(m)?;
-                let mut out = resolved
-                    .measure_posed(m, &posed)
-                    .map_err(|e| e.to_string())?;
+                let mut out = resolved.measure_posed(m, &posed)?;
                 let routes = resolved.routes();
                 if routes.contains(&PostureFree::Skeleton) {
-                    let (straight, _) = crate::template::remove_posture(figure, *kind, m)
-                        .map_err(|e| e.to_string())?;
-                    let on_straight = resolved.measure(&straight).map_err(|e| e.to_string())?;
+                    let (straight, _) = crate::template::remove_posture(figure, *kind, m)?;
+                    let on_straight = resolved.measure(&straight)?;
                     for ((o, s), how) in out.iter_mut().zip(on_straight).zip(routes) {
                         if how == PostureFree::Skeleton {
                             *o = s;
@@ -963,9 +968,7 @@ impl PostureRemoval {
                 }
                 Ok(out)
             }
-            _ => resolved
-                .measure(&self.apply(name, m)?)
-                .map_err(|e| e.to_string()),
+            _ => resolved.measure(&self.apply(name, m)?),
         }
     }
 }

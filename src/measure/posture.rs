@@ -60,21 +60,20 @@ impl Articulation {
     }
 
     /// The parts' fits to `mesh` (the template's vertex order).
-    pub fn fit(&self, mesh: &Mesh) -> Result<Posed<'_>, String> {
+    pub fn fit(&self, mesh: &Mesh) -> Result<Posed<'_>, super::MeasureError> {
         if mesh.vertices.len() != self.rest.len() {
-            return Err(format!(
-                "the mesh has {} vertices, the template {}: not a result of this template",
-                mesh.vertices.len(),
-                self.rest.len()
-            ));
+            return Err(super::MeasureError::VertexCount {
+                got: mesh.vertices.len(),
+                expected: self.rest.len(),
+            });
         }
         let x = &mesh.vertices;
         let nb = self.parents.len();
         if x.is_empty() {
-            return Err("the mesh has no vertices".into());
+            return Err(super::MeasureError::EmptyMesh);
         }
         let bones = skinning_fit(&self.rest, &self.weights, &self.parents, &self.joints, x)
-            .ok_or("the mesh's parts could not be fitted (degenerate mesh)")?;
+            .ok_or(super::MeasureError::PartsNotFitted)?;
         let root = self.parents.iter().position(|p| p.is_none()).unwrap_or(0);
         let r_root = bones[root].rotation;
         // N_b(x) = M_b x + c_b: bone b's offset from its joint turned back to the
