@@ -52,7 +52,7 @@ fn main() {
     let sets: Vec<PathBuf> = (0..3)
         .flat_map(|i| {
             let pose = format!("swing={},nod={}", 8 - 6 * i, -5 + 5 * i);
-            conformd::jobs::simulate(&rig, "pig", &pose, 1, 2.0, &d.join("sim")).unwrap()
+            conformd::commands::simulate(&rig, "pig", &pose, 1, 2.0, &d.join("sim")).unwrap()
         })
         .collect();
     let port = std::net::TcpListener::bind("127.0.0.1:0")

@@ -9,7 +9,7 @@ use conformd::stereo::reconstruct::{
     reconstruct,
 };
 use conformd::stereo::rig::{PodSpec, RigFile};
-use conformd::synth::rig::render_rig;
+use conformd::synth::virtual_rig::render_rig;
 use conformd::template::{self as templates, Kind};
 use std::time::Instant;
 

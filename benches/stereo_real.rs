@@ -146,7 +146,7 @@ fn main() {
     // a recorded pair replayed as a station's capture set, scored in depth
     let kitti = root.join("kitti-000070");
     let dir = tempfile::tempdir().unwrap();
-    let p = conformd::jobs::import_pair(
+    let p = conformd::commands::import_pair(
         &kitti.join("left.png"),
         &kitti.join("right.png"),
         &kitti.join("calib.txt"),
@@ -159,10 +159,10 @@ fn main() {
         conformd::stereo::rig::Reconstruction::load(&p.rig, Some(&p.calibration)).unwrap();
     let scan_path = dir.path().join("scan.ply");
     let (scan, r) =
-        conformd::jobs::reconstruct_scan(&mut station, &p.capture, &scan_path, None, false)
+        conformd::commands::reconstruct_scan(&mut station, &p.capture, &scan_path, None, false)
             .unwrap();
-    let s =
-        conformd::jobs::score_scan(&scan, &station, None, p.truth.as_ref().unwrap(), None).unwrap();
+    let s = conformd::commands::score_scan(&scan, &station, None, p.truth.as_ref().unwrap(), None)
+        .unwrap();
     println!(
         "KITTI #70 replayed (import-pair, reconstruct, natural profile; {:.2} s): {s}",
         r.seconds_total

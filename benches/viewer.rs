@@ -20,7 +20,7 @@ fn main() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let rig = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/rig.example.toml");
-    let set = conformd::jobs::simulate(&rig, "pig", "swing=8,nod=-5", 1, 2.0, &d.join("sim"))
+    let set = conformd::commands::simulate(&rig, "pig", "swing=8,nod=-5", 1, 2.0, &d.join("sim"))
         .unwrap()
         .remove(0);
     let port = std::net::TcpListener::bind("127.0.0.1:0")

@@ -3,16 +3,16 @@
 //! improved), shape models, and the station pipeline that runs them per capture.
 //! `ARCHITECTURE.md` has the data path and what each module owns.
 
+pub mod commands;
 pub mod conform;
 pub mod daemon;
+pub mod devices;
 pub mod files;
-pub mod jobs;
 pub mod measure;
 pub mod mesh;
 pub mod model;
 pub mod paths;
 pub mod render;
-pub mod rig;
 pub mod station;
 pub mod stereo;
 pub mod synth;

@@ -7,10 +7,10 @@ mod cli;
 use clap::Parser;
 use cli::args::{Cli, Cmd};
 use cli::commands;
-use conformd::jobs;
+use conformd::commands::CommandError;
 use std::process::ExitCode;
 
-fn run(cli: Cli) -> Result<(), jobs::JobError> {
+fn run(cli: Cli) -> Result<(), CommandError> {
     match cli.cmd {
         Cmd::Conform(a) => commands::conform::run(a),
         Cmd::Check(a) => commands::check::run(a),

@@ -2,7 +2,7 @@
 //! baseline recovered within 0.5%, RMS reprojection error below 0.3 px.
 
 use conformd::stereo::rig::RigFile;
-use conformd::synth::rig::{Chessboard, chessboard_poses, render_chessboard};
+use conformd::synth::virtual_rig::{Chessboard, chessboard_poses, render_chessboard};
 
 #[test]
 fn calibration_recovers_focal_length_and_baseline() {
@@ -80,20 +80,20 @@ fn placement_finds_pod_poses_in_the_rig_frame() {
     let d = dir.path();
     let rig_path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("config/rig.example.toml");
     let pig =
-        conformd::jobs::simulate(&rig_path, "pig", "swing=8", 1, 2.0, &d.join("sim")).unwrap();
+        conformd::commands::simulate(&rig_path, "pig", "swing=8", 1, 2.0, &d.join("sim")).unwrap();
     let cal = d.join("sim/calibration");
     let truth = RigFile::load(&rig_path).unwrap().pods();
     let mut last = None;
     for yaw in [0.0, 35.0] {
         let out = d.join(format!("place{yaw}"));
         let set =
-            conformd::jobs::simulate_placement(&rig_path, "9x6", 0.08, yaw, 1.0, &out).unwrap();
+            conformd::commands::simulate_placement(&rig_path, "9x6", 0.08, yaw, 1.0, &out).unwrap();
         // where the board lay, as simulate wrote it
         let placement: BoardPlacement =
             toml::from_str(&std::fs::read_to_string(set.join("placement.toml")).unwrap()).unwrap();
         assert_eq!(placement.yaw, yaw);
         let measured_path = d.join(format!("measured{yaw}.toml"));
-        let found = conformd::jobs::calibrate_placement(
+        let found = conformd::commands::calibrate_placement(
             &set,
             &rig_path,
             Some(&cal),
@@ -124,7 +124,7 @@ fn placement_finds_pod_poses_in_the_rig_frame() {
     }
     let (set, placement, measured_path) = last.unwrap();
     // the scan reconstructed with the measured poses
-    conformd::jobs::reconstruct(
+    conformd::commands::reconstruct(
         &pig[0],
         &measured_path,
         Some(&cal),
@@ -160,7 +160,7 @@ fn placement_finds_pod_poses_in_the_rig_frame() {
     image::GrayImage::new(1280, 960)
         .save(set.join("pod2-left.png"))
         .unwrap();
-    let e = conformd::jobs::calibrate_placement(
+    let e = conformd::commands::calibrate_placement(
         &set,
         &rig_path,
         Some(&cal),
@@ -176,7 +176,7 @@ fn placement_finds_pod_poses_in_the_rig_frame() {
         "{e}"
     );
     // a board that looks the same from both ends cannot place the rig
-    let e = conformd::jobs::calibrate_placement(
+    let e = conformd::commands::calibrate_placement(
         &set,
         &rig_path,
         Some(&cal),

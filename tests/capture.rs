@@ -7,13 +7,13 @@
 use crate::common;
 use common::{CHILD_LIMIT, Deadline};
 
-use conformd::rig::camera::{Camera, CameraInfo, CameraSettings, PixelFormat};
-use conformd::rig::capture::{
+use conformd::devices::camera::{Camera, CameraInfo, CameraSettings, PixelFormat};
+use conformd::devices::capture::{
     CaptureError, CaptureOptions, Manifest, Session, SoftwareTrigger, Trigger,
 };
-use conformd::rig::replay::{Fault, ReplayCamera};
-use conformd::rig::trigger::TriggerError;
-use conformd::rig::v4l2::V4l2Camera;
+use conformd::devices::replay::{Fault, ReplayCamera};
+use conformd::devices::trigger::TriggerError;
+use conformd::devices::v4l2::V4l2Camera;
 use conformd::synth::v4l2_driver::{Mode, SimulatedDriver, SimulatedTrigger};
 use std::path::Path;
 use std::time::Duration;
@@ -127,7 +127,7 @@ fn a_good_capture_writes_a_complete_set() {
     r.arm().unwrap();
     let f = r
         .grab(
-            conformd::rig::camera::monotonic_now(),
+            conformd::devices::camera::monotonic_now(),
             std::time::Instant::now() + Duration::from_millis(100),
         )
         .unwrap();

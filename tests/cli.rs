@@ -402,7 +402,7 @@ fn a_user_mesh_or_a_generic_template_named_in_a_config() {
 #[test]
 fn example_config_documents_the_defaults() {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/conform.example.toml");
-    let loaded = conformd::jobs::load_conform_options(&path).expect("the example config loads");
+    let loaded = conformd::commands::load_conform_options(&path).expect("the example config loads");
     let as_json = |o: &conformd::conform::ConformOptions| serde_json::to_value(o).unwrap();
     assert_eq!(
         as_json(&loaded),
@@ -523,9 +523,9 @@ fn template_model_modes_and_score() {
 #[test]
 fn example_station_config_loads() {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/station.example.toml");
-    let opts = conformd::jobs::load_conform_options(&path).expect("options load");
+    let opts = conformd::commands::load_conform_options(&path).expect("options load");
     assert_eq!(opts.stiffness.get("ears"), Some(&5.0));
-    let src = conformd::jobs::template_from_config(&path).expect("has [template]");
+    let src = conformd::commands::template_from_config(&path).expect("has [template]");
     assert_eq!(src.generic, Some(conformd::template::Kind::Pig));
     assert_eq!(src.vertices, Some(10_000));
 }

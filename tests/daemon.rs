@@ -49,7 +49,7 @@ fn simulated() -> &'static (tempfile::TempDir, Vec<PathBuf>) {
             "swing=-4,nod=-3,twist=8",
         ] {
             sets.extend(
-                conformd::jobs::simulate(&rig, "pig", pose, 1, 2.0, &dir.path().join("sim"))
+                conformd::commands::simulate(&rig, "pig", pose, 1, 2.0, &dir.path().join("sim"))
                     .unwrap(),
             );
         }

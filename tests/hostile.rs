@@ -1049,11 +1049,13 @@ fn messages_say_what_to_write_and_pages_agree_with_their_pictures() {
     let dir = tempfile::tempdir().unwrap();
     let w = dir.path().join("weights.csv");
     std::fs::write(&w, "id,kg\npig-1,80\npig-2,90\npig-1,80\npig-1,95\n").unwrap();
-    let e = conformd::jobs::read_weights(&w).unwrap_err().to_string();
+    let e = conformd::commands::read_weights(&w)
+        .unwrap_err()
+        .to_string();
     assert!(
         e.contains("line 5") && e.contains("95 kg here and 80 kg on line 2"),
         "{e}"
     );
     std::fs::write(&w, "id,kg\npig-1,80\npig-1,80\n").unwrap();
-    assert_eq!(conformd::jobs::read_weights(&w).unwrap().len(), 1);
+    assert_eq!(conformd::commands::read_weights(&w).unwrap().len(), 1);
 }

@@ -126,7 +126,7 @@ fn every_module_uses_only_what_the_architecture_table_allows() {
     let allowed: BTreeMap<String, BTreeSet<String>> = rows.iter().cloned().collect();
     let modules: BTreeSet<String> = allowed.keys().cloned().collect();
     for must in [
-        "mesh", "conform", "station", "daemon", "jobs", "main", "cli",
+        "mesh", "conform", "station", "daemon", "commands", "devices", "main", "cli",
     ] {
         assert!(
             modules.contains(must),

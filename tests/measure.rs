@@ -503,7 +503,7 @@ fn weights_are_recovered_from_measurements_with_cross_validated_error_under_4_pe
     let wpath = dir.path().join("weights.csv");
     std::fs::write(&wpath, &weights).unwrap();
     let out = dir.path().join("weight.json");
-    let j = conformd::jobs::model_weigh(&wpath, &results, Some(features), &out).unwrap();
+    let j = conformd::commands::model_weigh(&wpath, &results, Some(features), &out).unwrap();
     assert_eq!(j.samples, 40);
     assert!((j.cv_mean_relative_error - m.cv_mean_relative_error).abs() < 1e-3);
     let loaded = conformd::measure::weight::WeightModel::load(&out).unwrap();
@@ -515,7 +515,7 @@ fn weights_are_recovered_from_measurements_with_cross_validated_error_under_4_pe
         samples[0].2
     );
     // the export: a row per result, a column per measurement
-    let csv = conformd::jobs::export_csv(&results).unwrap().csv;
+    let csv = conformd::commands::export_csv(&results).unwrap().csv;
     let lines: Vec<&str> = csv.lines().collect();
     assert_eq!(lines.len(), 41);
     assert!(lines[0].contains(",volume,") && lines[1].starts_with("cap-00,tag-0,crate-t,"));
@@ -527,9 +527,9 @@ fn weights_are_recovered_from_measurements_with_cross_validated_error_under_4_pe
     )
     .unwrap();
     conformd::station::review::write(&results.join("cap-03"), &review).unwrap();
-    let j = conformd::jobs::model_weigh(&wpath, &results, None, &out).unwrap();
+    let j = conformd::commands::model_weigh(&wpath, &results, None, &out).unwrap();
     assert_eq!(j.samples, 39);
-    let export = conformd::jobs::export_csv(&results).unwrap();
+    let export = conformd::commands::export_csv(&results).unwrap();
     assert_eq!(export.csv.lines().count(), 40);
     assert!(!export.csv.contains("\ncap-03,"));
     assert_eq!(export.rejected.len(), 1);
@@ -546,7 +546,7 @@ fn weights_are_recovered_from_measurements_with_cross_validated_error_under_4_pe
     assert!(e.contains("bad.json: not a weight regression"), "{e}");
     // a bad weights file names its line
     std::fs::write(&wpath, "id,kg\ntag-1,heavy\n").unwrap();
-    let e = conformd::jobs::model_weigh(&wpath, &results, None, &out)
+    let e = conformd::commands::model_weigh(&wpath, &results, None, &out)
         .unwrap_err()
         .to_string();
     assert!(

@@ -5,7 +5,7 @@
 use crate::common;
 use common::{CHILD_LIMIT, Deadline};
 
-use conformd::jobs;
+use conformd::commands;
 use conformd::station::pipeline::{Control, Pipeline, RESULT_FILES, Stage, remove_partial_results};
 use conformd::station::{StageError, StationConfig};
 use std::path::{Path, PathBuf};
@@ -24,7 +24,7 @@ fn simulated() -> &'static (tempfile::TempDir, PathBuf) {
     static SIM: OnceLock<(tempfile::TempDir, PathBuf)> = OnceLock::new();
     SIM.get_or_init(|| {
         let dir = tempfile::tempdir().unwrap();
-        let sets = jobs::simulate(
+        let sets = commands::simulate(
             &rig_path(),
             "pig",
             "swing=8,nod=-6",
@@ -83,12 +83,12 @@ fn process_gives_what_reconstruct_then_conform_give() {
     let (sim, set) = simulated();
     let cfg = station_file(d, "");
     let results = d.join("results");
-    let (folder, report) = jobs::process(
+    let (folder, report) = commands::process(
         set,
         &cfg,
         &results,
         None,
-        jobs::Write::Publish,
+        commands::Write::Publish,
         None,
         &mut |_| {},
     )
@@ -116,7 +116,7 @@ fn process_gives_what_reconstruct_then_conform_give() {
 
     // the same by hand: reconstruct, then conform the file it wrote
     let scan_path = d.join("scan.ply");
-    jobs::reconstruct(
+    commands::reconstruct(
         set,
         &rig_path(),
         Some(&sim.path().join("sim/calibration")),
@@ -125,16 +125,16 @@ fn process_gives_what_reconstruct_then_conform_give() {
         false,
     )
     .unwrap();
-    let files = jobs::ConformFiles {
-        template: jobs::template_from_config(&cfg).unwrap(),
+    let files = commands::ConformFiles {
+        template: commands::template_from_config(&cfg).unwrap(),
         scan: scan_path.clone(),
         template_landmarks: None,
         scan_landmarks: None,
         out: d.join("conformed.ply"),
         report: None,
     };
-    let opts = jobs::load_conform_options(&cfg).unwrap();
-    jobs::conform_files(&files, &opts, &mut |_| {}).unwrap();
+    let opts = commands::load_conform_options(&cfg).unwrap();
+    commands::conform_files(&files, &opts, &mut |_| {}).unwrap();
     let read = |p: &Path| conformd::mesh::read_mesh(p).unwrap();
     let (scan_a, scan_b) = (read(&folder.join("scan.ply")), read(&scan_path));
     assert_eq!(scan_a.vertices, scan_b.vertices, "the scans differ");
@@ -817,12 +817,12 @@ fn process_lands_near_the_truth_it_was_rendered_from() {
     let dir = tempfile::tempdir().unwrap();
     let (_, set) = simulated();
     let cfg = station_file(dir.path(), "");
-    let (folder, _) = jobs::process(
+    let (folder, _) = commands::process(
         set,
         &cfg,
         &dir.path().join("results"),
         None,
-        jobs::Write::Publish,
+        commands::Write::Publish,
         None,
         &mut |_| {},
     )

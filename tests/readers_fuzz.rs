@@ -63,7 +63,7 @@ proptest! {
 /// changed, or random bytes, must give a value or an error, never a panic; a station file
 /// error names a line whenever the parser knows one.
 mod config_readers {
-    use conformd::rig::capture_set::Manifest;
+    use conformd::devices::capture_set::Manifest;
     use conformd::station::StationConfig;
     use conformd::stereo::rig::RigFile;
     use proptest::prelude::*;

@@ -17,9 +17,10 @@ fn simulate_reconstruct_conform() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let rig_path = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/rig.example.toml");
-    let sets = conformd::jobs::simulate(&rig_path, "pig", "swing=8,nod=-6", 1, 2.0, &d.join("sim"))
-        .unwrap();
-    let report = conformd::jobs::reconstruct(
+    let sets =
+        conformd::commands::simulate(&rig_path, "pig", "swing=8,nod=-6", 1, 2.0, &d.join("sim"))
+            .unwrap();
+    let report = conformd::commands::reconstruct(
         &sets[0],
         &rig_path,
         Some(&d.join("sim/calibration")),
@@ -139,15 +140,20 @@ fn reconstruct_mesh_cuts_depth_jumps_and_conforms() {
     let rig_path = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/rig.example.toml");
     // legs forward and the head turned: legs in front of the belly, the snout before the shoulder
     let sets =
-        conformd::jobs::simulate(&rig_path, "pig", "swing=15,nod=-10", 1, 2.0, &d.join("sim"))
+        conformd::commands::simulate(&rig_path, "pig", "swing=15,nod=-10", 1, 2.0, &d.join("sim"))
             .unwrap();
     let truth = read_mesh(&sets[0].join("truth.ply")).unwrap();
     let mut station =
         conformd::stereo::rig::Reconstruction::load(&rig_path, Some(&d.join("sim/calibration")))
             .unwrap();
-    let report =
-        conformd::jobs::reconstruct_with(&mut station, &sets[0], &d.join("scan.ply"), None, true)
-            .unwrap();
+    let report = conformd::commands::reconstruct_with(
+        &mut station,
+        &sets[0],
+        &d.join("scan.ply"),
+        None,
+        true,
+    )
+    .unwrap();
     let scan = read_mesh(&d.join("scan.ply")).unwrap();
     assert_eq!(scan.triangles.len(), report.triangles);
     let topo = conformd::mesh::topology::report(&scan);
@@ -170,13 +176,24 @@ fn reconstruct_mesh_cuts_depth_jumps_and_conforms() {
     // the cut at work: with the edge margin off, SGBM keeps pixels right up to a depth
     // jump, and grids joined without the cut bridge it (the maps come from the cache)
     station.options.sgbm.edge_margin = 0;
-    conformd::jobs::reconstruct_with(&mut station, &sets[0], &d.join("margin0.ply"), None, true)
-        .unwrap();
+    conformd::commands::reconstruct_with(
+        &mut station,
+        &sets[0],
+        &d.join("margin0.ply"),
+        None,
+        true,
+    )
+    .unwrap();
     let cut_only = bridges(&read_mesh(&d.join("margin0.ply")).unwrap());
     station.options.mesh.depth_cut = f64::INFINITY;
-    let r2 =
-        conformd::jobs::reconstruct_with(&mut station, &sets[0], &d.join("uncut.ply"), None, true)
-            .unwrap();
+    let r2 = conformd::commands::reconstruct_with(
+        &mut station,
+        &sets[0],
+        &d.join("uncut.ply"),
+        None,
+        true,
+    )
+    .unwrap();
     assert!(
         r2.pods.iter().all(|p| p.maps_reused),
         "second capture reuses the maps"
@@ -228,11 +245,11 @@ fn disparity_rejects_bad_pairs_clearly() {
     image::GrayImage::new(64, 48).save(d.join("l.png")).unwrap();
     image::GrayImage::new(60, 48).save(d.join("r.png")).unwrap();
     let o = conformd::stereo::disparity::SgbmOptions::default();
-    let e = conformd::jobs::disparity(&d.join("l.png"), &d.join("r.png"), &o, &d.join("d.pfm"))
+    let e = conformd::commands::disparity(&d.join("l.png"), &d.join("r.png"), &o, &d.join("d.pfm"))
         .unwrap_err()
         .to_string();
     assert!(e.contains("r.png") && e.contains("one size"), "{e}");
-    let e = conformd::jobs::disparity(
+    let e = conformd::commands::disparity(
         &d.join("l.png"),
         &d.join("missing.png"),
         &o,
@@ -273,7 +290,7 @@ fn reconstruct_names_missing_and_mismatched_images() {
     std::fs::write(&rig_path, toml::to_string(&rig).unwrap()).unwrap();
     let box_mesh = conformd::synth::tessellated_box(V3::new(0.6, 0.3, 0.3), 4);
     conformd::mesh::write_mesh(&d.join("box.ply"), &box_mesh).unwrap();
-    let sets = conformd::jobs::simulate(
+    let sets = conformd::commands::simulate(
         &rig_path,
         d.join("box.ply").to_str().unwrap(),
         "",
@@ -283,8 +300,9 @@ fn reconstruct_names_missing_and_mismatched_images() {
     )
     .unwrap();
     // the small view reconstructs (each pod searches only the volume's disparities)
-    let r = conformd::jobs::reconstruct(&sets[0], &rig_path, None, &d.join("ok.ply"), None, false)
-        .unwrap();
+    let r =
+        conformd::commands::reconstruct(&sets[0], &rig_path, None, &d.join("ok.ply"), None, false)
+            .unwrap();
     assert!(
         r.pods
             .iter()
@@ -300,9 +318,10 @@ fn reconstruct_names_missing_and_mismatched_images() {
             .save(sets[0].join(f))
             .unwrap();
     }
-    let e = conformd::jobs::reconstruct(&sets[0], &rig_path, None, &d.join("s.ply"), None, false)
-        .unwrap_err()
-        .to_string();
+    let e =
+        conformd::commands::reconstruct(&sets[0], &rig_path, None, &d.join("s.ply"), None, false)
+            .unwrap_err()
+            .to_string();
     for (f, bytes) in ["pod1-left.png", "pod1-right.png"].iter().zip(&keep) {
         std::fs::write(sets[0].join(f), bytes).unwrap();
     }
@@ -347,9 +366,10 @@ fn reconstruct_names_missing_and_mismatched_images() {
     let png = sets[0].join("pod1-left.png");
     let bytes = std::fs::read(&png).unwrap();
     std::fs::write(&png, &bytes[..bytes.len() / 3]).unwrap();
-    let e = conformd::jobs::reconstruct(&sets[0], &rig_path, None, &d.join("s.ply"), None, false)
-        .unwrap_err()
-        .to_string();
+    let e =
+        conformd::commands::reconstruct(&sets[0], &rig_path, None, &d.join("s.ply"), None, false)
+            .unwrap_err()
+            .to_string();
     assert!(
         e.contains("camera pod1-left") && e.contains("pod1-left.png"),
         "{e}"
@@ -357,9 +377,10 @@ fn reconstruct_names_missing_and_mismatched_images() {
     std::fs::write(&png, &bytes).unwrap();
     // an image gone
     std::fs::remove_file(sets[0].join("pod1-right.png")).unwrap();
-    let e = conformd::jobs::reconstruct(&sets[0], &rig_path, None, &d.join("s.ply"), None, false)
-        .unwrap_err()
-        .to_string();
+    let e =
+        conformd::commands::reconstruct(&sets[0], &rig_path, None, &d.join("s.ply"), None, false)
+            .unwrap_err()
+            .to_string();
     assert!(
         e.contains("pod1-right") && e.contains("pod1-right.png"),
         "{e}"
@@ -368,16 +389,17 @@ fn reconstruct_names_missing_and_mismatched_images() {
     image::GrayImage::new(80, 60)
         .save(sets[0].join("pod1-right.png"))
         .unwrap();
-    let e = conformd::jobs::reconstruct(&sets[0], &rig_path, None, &d.join("s.ply"), None, false)
-        .unwrap_err()
-        .to_string();
+    let e =
+        conformd::commands::reconstruct(&sets[0], &rig_path, None, &d.join("s.ply"), None, false)
+            .unwrap_err()
+            .to_string();
     assert!(
         e.contains("pod1-right") && e.contains("80x60") && e.contains("160x120"),
         "{e}"
     );
     // a calibration folder without this pod's file, and a garbled file
     std::fs::create_dir_all(d.join("cal")).unwrap();
-    let e = conformd::jobs::reconstruct(
+    let e = conformd::commands::reconstruct(
         &sets[0],
         &rig_path,
         Some(&d.join("cal")),
@@ -392,7 +414,7 @@ fn reconstruct_names_missing_and_mismatched_images() {
         "{e}"
     );
     std::fs::write(d.join("cal/pod1.yml"), "%YAML:1.0\n---\nM1: 3\n").unwrap();
-    let e = conformd::jobs::reconstruct(
+    let e = conformd::commands::reconstruct(
         &sets[0],
         &rig_path,
         Some(&d.join("cal")),
@@ -405,7 +427,7 @@ fn reconstruct_names_missing_and_mismatched_images() {
     assert!(e.contains("pod1.yml"), "{e}");
     // a rig file without pods
     std::fs::write(d.join("empty.toml"), "name = \"x\"\npods = []\n").unwrap();
-    let e = conformd::jobs::reconstruct(
+    let e = conformd::commands::reconstruct(
         &sets[0],
         &d.join("empty.toml"),
         None,
@@ -431,8 +453,10 @@ fn subpixel_refinement_cuts_depth_noise_on_a_wall() {
     // a 2 x 2 m slab whose face y = -0.05 faces pod1
     let wall = conformd::synth::tessellated_box(V3::new(2.0, 0.1, 2.0), 40);
     let pods = rig.pods();
-    let l = conformd::synth::rig::render_camera(&pods[0], &rig.pods[0], false, &wall, 2.0, 1);
-    let r = conformd::synth::rig::render_camera(&pods[0], &rig.pods[0], true, &wall, 2.0, 1);
+    let l =
+        conformd::synth::virtual_rig::render_camera(&pods[0], &rig.pods[0], false, &wall, 2.0, 1);
+    let r =
+        conformd::synth::virtual_rig::render_camera(&pods[0], &rig.pods[0], true, &wall, 2.0, 1);
     let mut cache = RectifierCache::default();
     let (rect, _) = cache.get(&pods[0]).unwrap();
     let mut figures = Vec::new();
@@ -483,15 +507,15 @@ fn disparity_range_follows_the_working_volume() {
     rig.working_volume = Some([[-1.0, -0.5, -0.05], [1.1, 0.5, 1.0]]);
     let rig_path = d.join("near.toml");
     std::fs::write(&rig_path, toml::to_string(&rig).unwrap()).unwrap();
-    let sets = conformd::jobs::simulate(&rig_path, "pig", "", 1, 2.0, &d.join("sim")).unwrap();
+    let sets = conformd::commands::simulate(&rig_path, "pig", "", 1, 2.0, &d.join("sim")).unwrap();
     let truth = read_mesh(&sets[0].join("truth.ply")).unwrap();
     let mut station = conformd::stereo::rig::Reconstruction::load(&rig_path, None).unwrap();
     let mut figures = Vec::new();
     for auto in [true, false] {
         station.options.auto_disparity_range = auto;
         let out = d.join(format!("scan-{auto}.ply"));
-        let r =
-            conformd::jobs::reconstruct_with(&mut station, &sets[0], &out, None, false).unwrap();
+        let r = conformd::commands::reconstruct_with(&mut station, &sets[0], &out, None, false)
+            .unwrap();
         let scan = read_mesh(&out).unwrap();
         let (mean, p95) = accuracy(&scan, &truth);
         let cov = coverage(&scan, &truth, &rig_path);
@@ -534,7 +558,8 @@ fn a_working_volume_narrower_than_the_view_is_matched_in_its_window_alone() {
             .unwrap();
     let wide = d.join("wide.toml");
     std::fs::write(&wide, toml::to_string(&rig).unwrap()).unwrap();
-    let sets = conformd::jobs::simulate(&wide, "pig", "swing=6", 1, 2.0, &d.join("sim")).unwrap();
+    let sets =
+        conformd::commands::simulate(&wide, "pig", "swing=6", 1, 2.0, &d.join("sim")).unwrap();
     let truth = read_mesh(&sets[0].join("truth.ply")).unwrap();
     let (mut lo, mut hi) = ([f64::MAX; 3], [f64::MIN; 3]);
     for p in &truth.vertices {
@@ -551,8 +576,8 @@ fn a_working_volume_narrower_than_the_view_is_matched_in_its_window_alone() {
     for window in [true, false] {
         station.options.volume_window = window;
         let out = d.join(format!("scan-{window}.ply"));
-        let r =
-            conformd::jobs::reconstruct_with(&mut station, &sets[0], &out, None, false).unwrap();
+        let r = conformd::commands::reconstruct_with(&mut station, &sets[0], &out, None, false)
+            .unwrap();
         let scan = read_mesh(&out).unwrap();
         let (mean, p95) = accuracy(&scan, &truth);
         let cov = coverage(&scan, &truth, &tight);
@@ -743,7 +768,7 @@ fn recorded_pairs_are_scored_against_their_ground_truth() {
         "{text}"
     );
     std::fs::write(dir.path().join("cut.pfm"), b"Pf\n450 375\n-1\n\0\0\0\0").unwrap();
-    let e = conformd::jobs::score_disparity(
+    let e = conformd::commands::score_disparity(
         &conformd::stereo::disparity::Disparity {
             width: 450,
             height: 375,
@@ -757,7 +782,7 @@ fn recorded_pairs_are_scored_against_their_ground_truth() {
     .to_string();
     assert!(e.contains("cut.pfm") && e.contains("truncated"), "{e}");
     // a truth of another size is refused with both sizes named
-    let e = conformd::jobs::score_disparity(
+    let e = conformd::commands::score_disparity(
         &conformd::stereo::disparity::Disparity {
             width: 10,
             height: 10,
@@ -980,11 +1005,16 @@ fn a_recorded_pair_replays_through_reconstruct_and_is_scored_in_depth() {
         Some(&d.path().join("replay/calibration")),
     )
     .unwrap();
-    let (scan, _) =
-        conformd::jobs::reconstruct_scan(&mut station, set, &d.path().join("s.ply"), None, false)
-            .unwrap();
-    let s =
-        conformd::jobs::score_scan(&scan, &station, None, &set.join("truth.png"), None).unwrap();
+    let (scan, _) = conformd::commands::reconstruct_scan(
+        &mut station,
+        set,
+        &d.path().join("s.ply"),
+        None,
+        false,
+    )
+    .unwrap();
+    let s = conformd::commands::score_scan(&scan, &station, None, &set.join("truth.png"), None)
+        .unwrap();
     let lg = image::open(root.join("left.png")).unwrap().to_luma8();
     let rg = image::open(root.join("right.png")).unwrap().to_luma8();
     let truth = read_truth(&root.join("disp_noc.png"), None).unwrap();
@@ -1026,16 +1056,17 @@ fn a_recorded_pair_replays_through_reconstruct_and_is_scored_in_depth() {
     assert!(result.join("conformed.ply").is_file() && result.join("report.json").is_file());
     // the scan scored against another pod, or a calibration and truth that cannot be
     // read, are refused naming what was wrong, and nothing is written
-    let e = conformd::jobs::score_scan(&scan, &station, Some("nope"), &set.join("truth.png"), None)
-        .unwrap_err()
-        .to_string();
+    let e =
+        conformd::commands::score_scan(&scan, &station, Some("nope"), &set.join("truth.png"), None)
+            .unwrap_err()
+            .to_string();
     assert!(e.contains("nope"), "{e}");
     std::fs::write(
         d.path().join("calib.txt"),
         "P0: 1 0 0 0 0 1 0 0 0 0 1 0\nP1: 7 x\n",
     )
     .unwrap();
-    let e = conformd::jobs::import_pair(
+    let e = conformd::commands::import_pair(
         &root.join("left.png"),
         &root.join("right.png"),
         &d.path().join("calib.txt"),
@@ -1047,7 +1078,7 @@ fn a_recorded_pair_replays_through_reconstruct_and_is_scored_in_depth() {
     .to_string();
     assert!(e.contains("calib.txt") && e.contains("'x'"), "{e}");
     let cones = root.join("../cones/disp2.png");
-    let e = conformd::jobs::import_pair(
+    let e = conformd::commands::import_pair(
         &root.join("left.png"),
         &root.join("right.png"),
         &root.join("calib.txt"),

@@ -2,7 +2,7 @@
 //! thread: handshake, fire and acknowledge, button and RFID events, garbage bytes, an
 //! over-long line, a box that stops answering, the pty closing and a new one appearing.
 
-use conformd::rig::trigger::{BoxEvent, TriggerBox, TriggerError, TriggerLink};
+use conformd::devices::trigger::{BoxEvent, TriggerBox, TriggerError, TriggerLink};
 use serialport::{SerialPort, TTYPort};
 use std::io::{BufRead, BufReader, Write};
 use std::sync::Arc;
@@ -220,9 +220,9 @@ fn the_link_reconnects_when_the_device_comes_back() {
 
 #[test]
 fn a_capture_session_fires_through_the_box() {
-    use conformd::rig::camera::{Camera, CameraInfo, CameraSettings, PixelFormat};
-    use conformd::rig::capture::{CaptureOptions, Session};
-    use conformd::rig::replay::ReplayCamera;
+    use conformd::devices::camera::{Camera, CameraInfo, CameraSettings, PixelFormat};
+    use conformd::devices::capture::{CaptureOptions, Session};
+    use conformd::devices::replay::ReplayCamera;
     let (master, slave) = TTYPort::pair().unwrap();
     let script = Script::default();
     let sim = run_box(master, script.clone());

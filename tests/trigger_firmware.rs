@@ -7,7 +7,7 @@
 //! reopened; `conformd capture` fires a capture through it.
 
 use crate::common::{CHILD_LIMIT, Deadline};
-use conformd::rig::trigger::{BoxEvent, TriggerError, TriggerLink};
+use conformd::devices::trigger::{BoxEvent, TriggerError, TriggerLink};
 use std::io::{BufRead, BufReader, Read, Write};
 use std::path::{Path, PathBuf};
 use std::process::{Child, ChildStdin, Command, Stdio};

@@ -3,8 +3,8 @@
 //! `make test`'s closing line; `make test-hardware` runs it on a station. What runs
 //! everywhere is the listing's check against `/dev`.
 
-use conformd::rig::camera::{Camera, CameraInfo, CameraSettings, monotonic_now};
-use conformd::rig::v4l2::{V4l2Camera, list_devices};
+use conformd::devices::camera::{Camera, CameraInfo, CameraSettings, monotonic_now};
+use conformd::devices::v4l2::{V4l2Camera, list_devices};
 use std::time::{Duration, Instant};
 
 fn video_nodes() -> Vec<std::fs::DirEntry> {

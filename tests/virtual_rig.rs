@@ -5,7 +5,7 @@ use crate::common;
 use common::{CHILD_LIMIT, Deadline};
 
 use conformd::stereo::rig::RigFile;
-use conformd::synth::rig::render_camera;
+use conformd::synth::virtual_rig::render_camera;
 use conformd::template::{self as templates, Kind};
 
 fn rig() -> RigFile {
@@ -150,7 +150,7 @@ fn simulate_writes_standard_capture_sets() {
         .collect();
     assert_eq!(sets.len(), 2);
     for s in &sets {
-        let m = conformd::rig::capture::Manifest::read(&s.path()).unwrap();
+        let m = conformd::devices::capture::Manifest::read(&s.path()).unwrap();
         assert_eq!(m.cameras.len(), 4);
         for c in &m.cameras {
             let img = image::open(s.path().join(&c.file)).unwrap();

@@ -451,7 +451,7 @@ fn a_worker_runs_the_real_pipeline_and_publishes_whole_results() {
     )
     .unwrap();
     let sim = dir.path().join("sim");
-    let sets = conformd::jobs::simulate(&rig, "pig", "swing=8,nod=-6", 2, 2.0, &sim).unwrap();
+    let sets = conformd::commands::simulate(&rig, "pig", "swing=8,nod=-6", 2, 2.0, &sim).unwrap();
     let extra = format!(
         "[rig]\nfile = \"{}\"\ncalibration = \"{}\"\n[conform]\nmax_iterations = 10\n",
         rig.display(),

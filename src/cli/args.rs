@@ -1,8 +1,8 @@
 //! The command line's arguments: every command and flag, with its help text.
 
 use clap::{Parser, Subcommand};
+use conformd::commands;
 use conformd::conform::Method;
-use conformd::jobs;
 use std::path::PathBuf;
 
 #[derive(Parser)]
@@ -305,7 +305,7 @@ pub struct RenderArgs {
     pub mesh: PathBuf,
     /// `none`, `group`, or `distance-to=SCAN`
     #[arg(long, default_value = "none")]
-    pub colour_by: jobs::ColourBy,
+    pub colour_by: commands::ColourBy,
     /// comma-separated views: front, back, left, right, side, top, three-quarter
     #[arg(long, default_value = "three-quarter,side", value_delimiter = ',')]
     pub views: Vec<String>,

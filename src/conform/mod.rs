@@ -738,7 +738,7 @@ pub fn conform(
     scan: &Mesh,
     landmarks: Option<(&[Landmark], &[Landmark])>,
     opts: &ConformOptions,
-    progress: &mut Progress,
+    progress: &mut OnIteration,
 ) -> Result<Conformed, ConformError> {
     let never = std::sync::atomic::AtomicBool::new(false);
     conform_cancellable(template, scan, landmarks, opts, progress, &never)
@@ -755,7 +755,7 @@ pub fn conform_rigged(
     scan: &Mesh,
     landmarks: Option<(&[Landmark], &[Landmark])>,
     opts: &ConformOptions,
-    progress: &mut Progress,
+    progress: &mut OnIteration,
     cancel: &std::sync::atomic::AtomicBool,
 ) -> Result<Conformed, ConformError> {
     if let Some(r) = rig {
@@ -770,7 +770,7 @@ pub fn conform_rigged(
 
 /// What a conformation tells its caller after each iteration. `Send`: the work runs on
 /// the thread pool.
-pub type Progress<'a> = dyn FnMut(&IterationReport) + Send + 'a;
+pub type OnIteration<'a> = dyn FnMut(&IterationReport) + Send + 'a;
 
 /// [`conform`] that a service can stop: `cancel` is read between stages and iterations,
 /// and once it is set the call returns [`ConformError::Cancelled`] within one iteration.
@@ -779,7 +779,7 @@ pub fn conform_cancellable(
     scan: &Mesh,
     landmarks: Option<(&[Landmark], &[Landmark])>,
     opts: &ConformOptions,
-    progress: &mut Progress,
+    progress: &mut OnIteration,
     cancel: &std::sync::atomic::AtomicBool,
 ) -> Result<Conformed, ConformError> {
     conform_rigged(template, None, scan, landmarks, opts, progress, cancel)
@@ -791,7 +791,7 @@ fn conform_on_pool(
     scan: &Mesh,
     landmarks: Option<(&[Landmark], &[Landmark])>,
     opts: &ConformOptions,
-    progress: &mut Progress,
+    progress: &mut OnIteration,
     cancel: &std::sync::atomic::AtomicBool,
 ) -> Result<Conformed, ConformError> {
     let t_start = Instant::now();
@@ -920,7 +920,7 @@ impl<'a> Elastic<'a> {
         level: &Decimated,
         hypotheses: Vec<Hypothesis>,
         times: &mut StageTimes,
-        progress: &mut Progress,
+        progress: &mut OnIteration,
     ) -> Result<FittedHypothesis<'a>, ConformError> {
         let (opts, surface, pairs) = (self.opts, self.surface, self.pairs);
         let cpairs = pairs.map(|p| p.on_level(level));
@@ -1008,7 +1008,7 @@ impl<'a> Elastic<'a> {
         &self,
         hypotheses: Vec<Hypothesis>,
         times: &mut StageTimes,
-        progress: &mut Progress,
+        progress: &mut OnIteration,
     ) -> Result<FittedHypothesis<'a>, ConformError> {
         let (opts, surface) = (self.opts, self.surface);
         let mut best: Option<FittedHypothesis> = None;

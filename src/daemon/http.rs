@@ -859,7 +859,7 @@ fn esc(s: &str) -> String {
 
 fn when(t: Option<f64>) -> String {
     t.map(|t| {
-        crate::rig::capture::utc_stamp(
+        crate::devices::capture::utc_stamp(
             std::time::UNIX_EPOCH + std::time::Duration::from_secs_f64(t.max(0.0)),
         )
     })

@@ -5,9 +5,9 @@
 //! synchronous pipeline, in a child process (`conformd process --json`) so that a crash
 //! inside a job (an OpenCV abort, a segfault, running out of memory) fails that job only.
 
+mod capture;
 pub mod http;
 pub mod journal;
-mod rig;
 pub mod runner;
 pub mod sets;
 pub mod worker;
@@ -384,14 +384,14 @@ async fn serve(
     let journal = journal::open_tolerant(cfg.journal.url.as_deref(), &cfg.station.data)?;
     let worker_name = format!("{}:daemon:{}", journal::hostname(), cfg.station.name);
     let workers = half_the_cores(cfg.daemon.workers);
-    let (channel, rig_status) = rig::start(&cfg)?;
+    let (channel, rig_status) = capture::start(&cfg)?;
     let (capture, capture_rx) = match channel {
         Some((tx, rx)) => (Some(tx), Some(rx)),
         None => (None, None),
     };
     let shared = Shared::new(cfg, exe, journal, worker_name, workers, capture, rig_status)?;
     if let Some(rx) = capture_rx {
-        rig::spawn_capture_thread(shared.clone(), rx);
+        capture::spawn_capture_thread(shared.clone(), rx);
     }
     warm_template_cache(&shared);
     reconcile(&shared);
@@ -875,7 +875,7 @@ fn scan_folders(shared: &Shared) {
             waiting.insert(name);
             continue;
         }
-        let subject = crate::rig::capture_set::CaptureSetDir::open(&dir)
+        let subject = crate::devices::capture_set::CaptureSetDir::open(&dir)
             .ok()
             .and_then(|s| s.manifest.subject);
         match shared.journal_result(j.enqueue(&name, &dir, subject.as_deref())) {

@@ -5,7 +5,7 @@
 //! shows every key.
 
 use crate::conform::ConformOptions;
-use crate::rig::station::{CameraSection, CaptureSection, RigConfig, TriggerSection};
+use crate::devices::setup::{CameraSection, CaptureSection, RigConfig, TriggerSection};
 use crate::template::TemplateSource;
 use serde::de::{DeserializeOwned, IgnoredAny, MapAccess, Visitor};
 use std::path::{Path, PathBuf};
@@ -554,7 +554,7 @@ impl StationConfig {
             .clone()
             .unwrap_or_else(|| self.station.captures());
         capture.root = Some(root.clone());
-        if capture.options.station == crate::rig::capture::CaptureOptions::default().station {
+        if capture.options.station == crate::devices::capture::CaptureOptions::default().station {
             capture.options.station = self.station.name.clone();
         }
         Ok(RigConfig {

@@ -5,12 +5,12 @@
 //! and whether the capture (permanent) or the machine (retryable) is at fault.
 
 use crate::conform::{self, ConformError, ConformOptions, ConformReport, IterationReport};
+use crate::devices::capture_set::{CaptureSetDir, CaptureSetError};
 use crate::files::{sync_dir, write_synced};
 use crate::measure::weight::{WeightModel, WeightPrediction};
 use crate::measure::{Definitions, Measurement, PostureRemoval, Resolved};
 use crate::mesh::{Landmark, Mesh};
 use crate::model::{ModelError, Score, ShapeModel};
-use crate::rig::capture_set::{CaptureSetDir, CaptureSetError};
 use crate::station::config::StationConfig;
 use crate::stereo::reconstruct::{ReconstructError, ReconstructReport};
 use crate::stereo::rig::{Reconstruction, RigError};

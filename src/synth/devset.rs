@@ -518,7 +518,7 @@ pub fn captured_template_case(
     let a = posed("nod=8,leg_fl=12,tail=-10")?;
     let b = posed("swing=14,nod=-12,twist=6,leg_hl=-18,leg_fr=15,tail=25")?;
     let mut capture = |subject: &Mesh, as_mesh: bool, seed: u64| -> Result<Mesh, String> {
-        let rendered = super::rig::render_rig(rig, subject, 2.0, seed);
+        let rendered = super::virtual_rig::render_rig(rig, subject, 2.0, seed);
         let pairs: Vec<(Vec<u8>, Vec<u8>)> = rendered
             .chunks(2)
             .map(|p| (p[0].pixels.clone(), p[1].pixels.clone()))

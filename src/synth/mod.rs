@@ -7,11 +7,11 @@ pub mod cases;
 pub mod devset;
 pub mod posing;
 pub mod repeat;
-pub mod rig;
 pub mod scanner;
 pub mod semantic;
 pub mod trigger_box;
 pub mod v4l2_driver;
+pub mod virtual_rig;
 
 use crate::mesh::{Mesh, V3};
 use std::collections::HashMap;

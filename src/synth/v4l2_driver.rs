@@ -1,4 +1,4 @@
-//! A simulated V4L2 capture driver behind `rig::v4l2::CaptureQueue`, for the tests a
+//! A simulated V4L2 capture driver behind `devices::v4l2::CaptureQueue`, for the tests a
 //! machine without cameras runs. It behaves as a driver does where the station relies on
 //! it: `start` queues the buffers and turns streaming on (VIDIOC_STREAMON); sequence
 //! numbers count from 0 there; timestamps are CLOCK_MONOTONIC at the start of exposure; a
@@ -8,10 +8,10 @@
 //! it makes a frame every period from STREAMON on. [`SimulatedTrigger`] is a trigger box
 //! wired to such lines.
 
-use crate::rig::camera::monotonic_now;
-use crate::rig::capture::Trigger;
-use crate::rig::trigger::TriggerError;
-use crate::rig::v4l2::{BufferMeta, CaptureQueue};
+use crate::devices::camera::monotonic_now;
+use crate::devices::capture::Trigger;
+use crate::devices::trigger::TriggerError;
+use crate::devices::v4l2::{BufferMeta, CaptureQueue};
 use std::collections::VecDeque;
 use std::sync::{Arc, Condvar, Mutex};
 use std::time::{Duration, Instant};

@@ -1,9 +1,9 @@
 //! `conformd autorig`: an automatic rig for a template mesh.
 
 use crate::cli::args::AutorigArgs;
-use conformd::jobs;
+use conformd::commands;
 
-pub fn run(a: AutorigArgs) -> Result<(), jobs::JobError> {
+pub fn run(a: AutorigArgs) -> Result<(), commands::CommandError> {
     let AutorigArgs {
         mesh,
         limbs,
@@ -11,6 +11,9 @@ pub fn run(a: AutorigArgs) -> Result<(), jobs::JobError> {
         preview,
     } = a;
     let out = out.unwrap_or_else(|| mesh.with_extension("rig.json"));
-    println!("{}", jobs::autorig(&mesh, limbs, &out, preview.as_deref())?);
+    println!(
+        "{}",
+        commands::autorig(&mesh, limbs, &out, preview.as_deref())?
+    );
     Ok(())
 }

@@ -1,9 +1,9 @@
 //! `conformd calibrate`: one pod's stereo calibration, or every pod's placement in the rig.
 
 use crate::cli::args::CalibrateArgs;
-use conformd::jobs;
+use conformd::commands;
 
-pub fn run(a: CalibrateArgs) -> Result<(), jobs::JobError> {
+pub fn run(a: CalibrateArgs) -> Result<(), commands::CommandError> {
     let CalibrateArgs {
         images,
         placement,
@@ -21,7 +21,7 @@ pub fn run(a: CalibrateArgs) -> Result<(), jobs::JobError> {
                 origin: parse_point(&board_origin)?,
                 yaw: board_yaw,
             };
-            let found = jobs::calibrate_placement(
+            let found = commands::calibrate_placement(
                 &capture,
                 &rig,
                 calibration.as_deref(),
@@ -35,7 +35,7 @@ pub fn run(a: CalibrateArgs) -> Result<(), jobs::JobError> {
             }
         }
         (Some(images), _, _) => {
-            println!("{}", jobs::calibrate(&images, &board, square, &out)?)
+            println!("{}", commands::calibrate(&images, &board, square, &out)?)
         }
         _ => unreachable!("clap requires --images or --placement with --rig"),
     }
@@ -44,15 +44,15 @@ pub fn run(a: CalibrateArgs) -> Result<(), jobs::JobError> {
 }
 
 /// Parses `x,y,z`.
-fn parse_point(s: &str) -> Result<[f64; 3], jobs::JobError> {
+fn parse_point(s: &str) -> Result<[f64; 3], commands::CommandError> {
     let v: Vec<f64> = s
         .split(',')
         .map(|t| t.trim().parse::<f64>())
         .collect::<Result<_, _>>()
-        .map_err(|_| jobs::JobError::Usage(format!("'{s}': expected x,y,z in metres")))?;
+        .map_err(|_| commands::CommandError::Usage(format!("'{s}': expected x,y,z in metres")))?;
     match v[..] {
         [x, y, z] if v.iter().all(|c| c.is_finite()) => Ok([x, y, z]),
-        _ => Err(jobs::JobError::Usage(format!(
+        _ => Err(commands::CommandError::Usage(format!(
             "'{s}': expected x,y,z in metres"
         ))),
     }

@@ -1,9 +1,9 @@
 //! `conformd cameras`: the V4L2 cameras this machine has.
 
-use conformd::jobs;
+use conformd::commands;
 
-pub fn run() -> Result<(), jobs::JobError> {
-    let (list, unusable) = conformd::rig::v4l2::list_all();
+pub fn run() -> Result<(), commands::CommandError> {
+    let (list, unusable) = conformd::devices::v4l2::list_all();
     if list.is_empty() && unusable.is_empty() {
         println!("no V4L2 cameras found (no /dev/video* device on this machine)");
     }

@@ -1,10 +1,10 @@
 //! `conformd capture`: one capture set from the station's cameras and trigger.
 
 use crate::cli::args::CaptureArgs;
-use conformd::jobs;
+use conformd::commands;
 
-pub fn run(a: CaptureArgs) -> Result<(), jobs::JobError> {
+pub fn run(a: CaptureArgs) -> Result<(), commands::CommandError> {
     let CaptureArgs { config, subject } = a;
-    println!("{}", jobs::capture(&config, subject.as_deref())?);
+    println!("{}", commands::capture(&config, subject.as_deref())?);
     Ok(())
 }

@@ -1,11 +1,11 @@
 //! `conformd check`: a station file checked and shown as resolved.
 
 use crate::cli::args::CheckArgs;
-use conformd::jobs;
+use conformd::commands;
 
-pub fn run(a: CheckArgs) -> Result<(), jobs::JobError> {
+pub fn run(a: CheckArgs) -> Result<(), commands::CommandError> {
     let CheckArgs { config } = a;
-    let cfg = jobs::check(&config)?;
+    let cfg = commands::check(&config)?;
     println!("{} is a valid station file; resolved:", config.display());
     print!(
         "{}",

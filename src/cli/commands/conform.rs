@@ -2,10 +2,10 @@
 
 use crate::cli::args::ConformArgs;
 use crate::cli::progress;
-use conformd::jobs;
+use conformd::commands;
 use conformd::template::TemplateSource;
 
-pub fn run(a: ConformArgs) -> Result<(), jobs::JobError> {
+pub fn run(a: ConformArgs) -> Result<(), commands::CommandError> {
     let ConformArgs {
         template,
         template_groups,
@@ -18,26 +18,28 @@ pub fn run(a: ConformArgs) -> Result<(), jobs::JobError> {
         out,
         report,
     } = a;
-    let opts = jobs::conform_options(config.as_deref(), method)?;
+    let opts = commands::conform_options(config.as_deref(), method)?;
     let mut template = match (template, &config) {
-        (Some(t), _) => TemplateSource::named(&t, template_groups).map_err(jobs::JobError::from)?,
-        (None, Some(c)) => jobs::template_from_config(c)?,
+        (Some(t), _) => {
+            TemplateSource::named(&t, template_groups).map_err(commands::CommandError::from)?
+        }
+        (None, Some(c)) => commands::template_from_config(c)?,
         (None, None) => {
-            return Err(jobs::JobError::Usage(
+            return Err(commands::CommandError::Usage(
                 "--template is needed (or a --config with a [template] table)".into(),
             ));
         }
     };
     if template_rig.is_some() {
         if template.generic.is_some() {
-            return Err(jobs::JobError::Usage(
+            return Err(commands::CommandError::Usage(
                 "--template-rig is for a template mesh: a generic template brings its own rig"
                     .into(),
             ));
         }
         template.rig = template_rig;
     }
-    let files = jobs::ConformFiles {
+    let files = commands::ConformFiles {
         template,
         scan,
         template_landmarks,
@@ -46,7 +48,7 @@ pub fn run(a: ConformArgs) -> Result<(), jobs::JobError> {
         report: report.clone(),
     };
     let pb = progress::iterations(opts.max_iterations, "conform");
-    let r = jobs::conform_files(&files, &opts, &mut |it| progress::tick(&pb, it));
+    let r = commands::conform_files(&files, &opts, &mut |it| progress::tick(&pb, it));
     pb.finish_and_clear();
     println!("{}\nwrote {}", r?, out.display());
     if let Some(p) = report {

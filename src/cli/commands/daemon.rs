@@ -1,11 +1,11 @@
 //! `conformd daemon`: the station.
 
 use crate::cli::args::DaemonArgs;
-use conformd::jobs;
+use conformd::commands;
 
-pub fn run(a: DaemonArgs) -> Result<(), jobs::JobError> {
+pub fn run(a: DaemonArgs) -> Result<(), commands::CommandError> {
     let DaemonArgs { config } = a;
-    let cfg = jobs::check(&config)?;
+    let cfg = commands::check(&config)?;
     conformd::daemon::run(cfg)?;
     Ok(())
 }

@@ -3,19 +3,19 @@
 use crate::cli::args::DemoArgs;
 use crate::cli::args::DemoKind;
 use crate::cli::progress;
+use conformd::commands;
 use conformd::conform::Method;
-use conformd::jobs;
 use indicatif::ProgressBar;
 use std::path::PathBuf;
 
-pub fn run(a: DemoArgs) -> Result<(), jobs::JobError> {
+pub fn run(a: DemoArgs) -> Result<(), commands::CommandError> {
     match a.which {
         DemoKind::Station => station(a.out, a.keep_running),
         DemoKind::Paper => paper(a.out),
     }
 }
 
-fn station(out: PathBuf, keep_running: bool) -> Result<(), jobs::JobError> {
+fn station(out: PathBuf, keep_running: bool) -> Result<(), commands::CommandError> {
     let pb = progress::iterations(12, "render");
     pb.set_style(
         indicatif::ProgressStyle::with_template("{prefix} [{bar:30}] {pos}/{len} captures")
@@ -30,7 +30,7 @@ fn station(out: PathBuf, keep_running: bool) -> Result<(), jobs::JobError> {
             s.store(true, std::sync::atomic::Ordering::SeqCst);
         });
     }
-    let d = jobs::demo_station(
+    let d = commands::demo_station(
         &out,
         &mut |stage, done, total| {
             pb.set_prefix(stage.to_string());
@@ -51,9 +51,9 @@ fn station(out: PathBuf, keep_running: bool) -> Result<(), jobs::JobError> {
     Ok(())
 }
 
-fn paper(out: PathBuf) -> Result<(), jobs::JobError> {
+fn paper(out: PathBuf) -> Result<(), commands::CommandError> {
     let mut bars: Vec<(Method, ProgressBar)> = Vec::new();
-    let s = jobs::demo_paper(&out, &mut |m, it| {
+    let s = commands::demo_paper(&out, &mut |m, it| {
         if bars.last().map(|b| b.0) != Some(m) {
             if let Some((_, b)) = bars.last() {
                 b.finish_and_clear();

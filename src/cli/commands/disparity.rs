@@ -1,9 +1,9 @@
 //! `conformd disparity`: the disparity (and confidence) of a rectified pair, scored against a truth when given.
 
 use crate::cli::args::DisparityArgs;
-use conformd::jobs;
+use conformd::commands;
 
-pub fn run(a: DisparityArgs) -> Result<(), jobs::JobError> {
+pub fn run(a: DisparityArgs) -> Result<(), commands::CommandError> {
     let DisparityArgs {
         left,
         right,
@@ -22,7 +22,7 @@ pub fn run(a: DisparityArgs) -> Result<(), jobs::JobError> {
         "speckle" => Profile::Speckle,
         "natural" => Profile::Natural,
         other => {
-            return Err(jobs::JobError::Usage(format!(
+            return Err(commands::CommandError::Usage(format!(
                 "--profile {other}: expected speckle or natural"
             )));
         }
@@ -34,12 +34,13 @@ pub fn run(a: DisparityArgs) -> Result<(), jobs::JobError> {
         min_confidence: min_confidence.unwrap_or(defaults.min_confidence),
         ..defaults
     };
-    let truth = truth.as_deref().map(|file| jobs::TruthArgs {
+    let truth = truth.as_deref().map(|file| commands::TruthArgs {
         file,
         scale: truth_scale,
         min_x: truth_from_x,
     });
-    let (d, score) = jobs::disparity_scored(&left, &right, &o, &out, truth, confidence.as_deref())?;
+    let (d, score) =
+        commands::disparity_scored(&left, &right, &o, &out, truth, confidence.as_deref())?;
     println!(
         "{:.1}% of pixels have a disparity\nwrote {}",
         d.valid_share() * 100.0,

@@ -1,9 +1,9 @@
 //! `conformd export`: every result as CSV, and each subject's repeatability.
 
 use crate::cli::args::ExportArgs;
-use conformd::jobs;
+use conformd::commands;
 
-pub fn run(a: ExportArgs) -> Result<(), jobs::JobError> {
+pub fn run(a: ExportArgs) -> Result<(), commands::CommandError> {
     let ExportArgs {
         results,
         out,
@@ -12,7 +12,7 @@ pub fn run(a: ExportArgs) -> Result<(), jobs::JobError> {
     for p in out.iter().chain(&repeatability) {
         conformd::files::refuse_inside(p, &results, "the results folder")?;
     }
-    let export = jobs::export_csv(&results)?;
+    let export = commands::export_csv(&results)?;
     for (file, why) in &export.skipped {
         eprintln!("warning: {file} left out: {why}");
     }

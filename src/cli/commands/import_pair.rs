@@ -1,9 +1,9 @@
 //! `conformd import-pair`: a recorded rectified pair made into a rig file, a calibration and a capture set.
 
 use crate::cli::args::ImportPairArgs;
-use conformd::jobs;
+use conformd::commands;
 
-pub fn run(a: ImportPairArgs) -> Result<(), jobs::JobError> {
+pub fn run(a: ImportPairArgs) -> Result<(), commands::CommandError> {
     let ImportPairArgs {
         left,
         right,
@@ -12,7 +12,7 @@ pub fn run(a: ImportPairArgs) -> Result<(), jobs::JobError> {
         num_disparities,
         out,
     } = a;
-    let p = jobs::import_pair(
+    let p = commands::import_pair(
         &left,
         &right,
         &calib,

@@ -1,11 +1,11 @@
 //! `conformd info`: a mesh described.
 
 use crate::cli::args::InfoArgs;
-use conformd::jobs;
+use conformd::commands;
 
-pub fn run(a: InfoArgs) -> Result<(), jobs::JobError> {
+pub fn run(a: InfoArgs) -> Result<(), commands::CommandError> {
     let InfoArgs { mesh, original } = a;
-    let i = jobs::info(&mesh, original.as_deref())?;
+    let i = commands::info(&mesh, original.as_deref())?;
     println!("{}", serde_json::to_string_pretty(&i).expect("serialises"));
     Ok(())
 }

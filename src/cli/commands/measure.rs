@@ -1,10 +1,10 @@
 //! `conformd measure`: measurements of conformed meshes, raw and posture-free, or their repeatability.
 
 use crate::cli::args::MeasureArgs;
-use conformd::jobs;
+use conformd::commands;
 use conformd::template::TemplateSource;
 
-pub fn run(a: MeasureArgs) -> Result<(), jobs::JobError> {
+pub fn run(a: MeasureArgs) -> Result<(), commands::CommandError> {
     let MeasureArgs {
         meshes,
         template,
@@ -18,23 +18,23 @@ pub fn run(a: MeasureArgs) -> Result<(), jobs::JobError> {
         repeatability,
     } = a;
     let mut source =
-        TemplateSource::named(&template, template_groups).map_err(jobs::JobError::from)?;
+        TemplateSource::named(&template, template_groups).map_err(commands::CommandError::from)?;
     if template_landmarks.is_some() {
         source.landmarks = template_landmarks;
     }
     if source.generic.is_some() {
         source.vertices = vertices;
     }
-    let resolved = jobs::resolve_measurements(&source, definitions.as_deref())?;
+    let resolved = commands::resolve_measurements(&source, definitions.as_deref())?;
     let posture = normalise_posture
-        .then(|| jobs::posture_removal(&source, model.as_deref(), &resolved))
+        .then(|| commands::posture_removal(&source, model.as_deref(), &resolved))
         .transpose()?;
     let reports = meshes
         .iter()
-        .map(|m| jobs::measure(m, &resolved, posture.as_ref()))
+        .map(|m| commands::measure(m, &resolved, posture.as_ref()))
         .collect::<Result<Vec<_>, _>>()?;
     if repeatability {
-        print!("{}", jobs::repeatability(&reports)?);
+        print!("{}", commands::repeatability(&reports)?);
     } else {
         println!(
             "{}",
@@ -42,7 +42,7 @@ pub fn run(a: MeasureArgs) -> Result<(), jobs::JobError> {
         );
     }
     if let Some(p) = csv {
-        conformd::files::write_atomic(&p, jobs::measurements_csv(&reports).as_bytes())?;
+        conformd::files::write_atomic(&p, commands::measurements_csv(&reports).as_bytes())?;
         eprintln!("wrote {}", p.display());
     }
     Ok(())

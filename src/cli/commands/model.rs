@@ -1,9 +1,9 @@
 //! `conformd model ...`: the statistical shape model's commands.
 
 use crate::cli::args::ModelCmd;
-use conformd::jobs;
+use conformd::commands;
 
-pub fn run(cmd: ModelCmd) -> Result<(), jobs::JobError> {
+pub fn run(cmd: ModelCmd) -> Result<(), commands::CommandError> {
     match cmd {
         ModelCmd::Build {
             meshes,
@@ -20,7 +20,7 @@ pub fn run(cmd: ModelCmd) -> Result<(), jobs::JobError> {
                 max_modes,
                 posture,
             };
-            let (m, q) = jobs::model_build(&meshes, &opts, &out, quality)?;
+            let (m, q) = commands::model_build(&meshes, &opts, &out, quality)?;
             println!("{m}");
             if let Some(q) = q {
                 println!("{q}");
@@ -34,7 +34,7 @@ pub fn run(cmd: ModelCmd) -> Result<(), jobs::JobError> {
             view,
             out,
         } => {
-            for f in jobs::model_modes(&model, modes, sigma, &view, &out)? {
+            for f in commands::model_modes(&model, modes, sigma, &view, &out)? {
                 println!("wrote {}", f.display());
             }
         }
@@ -45,7 +45,7 @@ pub fn run(cmd: ModelCmd) -> Result<(), jobs::JobError> {
             degrees,
             out,
         } => {
-            let m = jobs::model_posture(kind, vertices, postures, degrees, &out)?;
+            let m = commands::model_posture(kind, vertices, postures, degrees, &out)?;
             println!("{m}");
             println!("wrote {}", out.display());
         }
@@ -55,12 +55,12 @@ pub fn run(cmd: ModelCmd) -> Result<(), jobs::JobError> {
             features,
             out,
         } => {
-            let m = jobs::model_weigh(&fit, &results, features, &out)?;
+            let m = commands::model_weigh(&fit, &results, features, &out)?;
             println!("{m}");
             println!("wrote {}", out.display());
         }
         ModelCmd::Score { model, meshes } => {
-            for s in jobs::model_score(&model, &meshes)? {
+            for s in commands::model_score(&model, &meshes)? {
                 println!("{s}");
             }
         }

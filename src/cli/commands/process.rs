@@ -2,9 +2,9 @@
 
 use crate::cli::args::ProcessArgs;
 use crate::cli::progress;
-use conformd::jobs;
+use conformd::commands;
 
-pub fn run(a: ProcessArgs) -> Result<(), jobs::JobError> {
+pub fn run(a: ProcessArgs) -> Result<(), commands::CommandError> {
     let ProcessArgs {
         capture,
         config,
@@ -20,13 +20,13 @@ pub fn run(a: ProcessArgs) -> Result<(), jobs::JobError> {
     }
     crate::cli::crash_hook(&capture);
     let write = if stage {
-        jobs::Write::Stage
+        commands::Write::Stage
     } else {
-        jobs::Write::Publish
+        commands::Write::Publish
     };
     let landmarks = landmarks.as_deref();
     let run = |tick: &mut (dyn FnMut(conformd::station::pipeline::Progress) + Send)| {
-        jobs::process(
+        commands::process(
             &capture,
             &config,
             &out,
@@ -38,7 +38,7 @@ pub fn run(a: ProcessArgs) -> Result<(), jobs::JobError> {
     };
     if json {
         let r = run(&mut |_| {});
-        let line = serde_json::to_string(&jobs::process_outcome(&r, write));
+        let line = serde_json::to_string(&commands::process_outcome(&r, write));
         println!("{}", line.expect("an outcome serialises"));
         r?;
     } else {

@@ -1,9 +1,9 @@
 //! `conformd render`: a shaded preview of a mesh.
 
 use crate::cli::args::RenderArgs;
-use conformd::jobs;
+use conformd::commands;
 
-pub fn run(a: RenderArgs) -> Result<(), jobs::JobError> {
+pub fn run(a: RenderArgs) -> Result<(), commands::CommandError> {
     let RenderArgs {
         mesh,
         colour_by,
@@ -12,7 +12,7 @@ pub fn run(a: RenderArgs) -> Result<(), jobs::JobError> {
         height,
         out,
     } = a;
-    jobs::render(&mesh, &colour_by, &views, width, height, &out)?;
+    commands::render(&mesh, &colour_by, &views, width, height, &out)?;
     println!("wrote {}", out.display());
     Ok(())
 }

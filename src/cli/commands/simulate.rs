@@ -1,9 +1,9 @@
 //! `conformd simulate`: capture sets (or calibration views) rendered as the rig's cameras would see them.
 
 use crate::cli::args::SimulateArgs;
-use conformd::jobs;
+use conformd::commands;
 
-pub fn run(a: SimulateArgs) -> Result<(), jobs::JobError> {
+pub fn run(a: SimulateArgs) -> Result<(), commands::CommandError> {
     let SimulateArgs {
         rig,
         subject,
@@ -19,13 +19,13 @@ pub fn run(a: SimulateArgs) -> Result<(), jobs::JobError> {
     } = a;
     let written = match (chessboard, subject) {
         (Some(board), _) if placement => {
-            vec![jobs::simulate_placement(
+            vec![commands::simulate_placement(
                 &rig, &board, square, board_yaw, noise, &out,
             )?]
         }
-        (Some(board), _) => jobs::simulate_chessboard(&rig, &board, square, views, &out)?,
+        (Some(board), _) => commands::simulate_chessboard(&rig, &board, square, views, &out)?,
         (None, Some(subject)) => {
-            let mut d = jobs::simulate(&rig, &subject, &pose, captures, noise, &out)?;
+            let mut d = commands::simulate(&rig, &subject, &pose, captures, noise, &out)?;
             d.push(out.join("calibration"));
             d
         }

@@ -1,9 +1,9 @@
 //! `conformd template`: a generic template written out.
 
 use crate::cli::args::TemplateArgs;
-use conformd::jobs;
+use conformd::commands;
 
-pub fn run(a: TemplateArgs) -> Result<(), jobs::JobError> {
+pub fn run(a: TemplateArgs) -> Result<(), commands::CommandError> {
     let TemplateArgs {
         kind,
         vertices,
@@ -11,7 +11,7 @@ pub fn run(a: TemplateArgs) -> Result<(), jobs::JobError> {
         shape,
         out,
     } = a;
-    let s = jobs::template(kind, vertices, &pose, &shape, &out)?;
+    let s = commands::template(kind, vertices, &pose, &shape, &out)?;
     println!("{kind:?} template: {s}");
     Ok(())
 }

@@ -1,9 +1,9 @@
-//! The daemon's side of the rig: one thread owns the capture session (cameras and
+//! The daemon's capture thread: it owns the capture session (cameras and
 //! trigger box), takes capture requests from the API and fires on the box's button and
 //! RFID events (the tag becomes the capture's subject).
 
 use super::{CaptureRequest, DaemonError, RigStatus, Shared};
-use crate::rig::trigger::BoxEvent;
+use crate::devices::trigger::BoxEvent;
 use crate::station::StationConfig;
 use std::sync::Arc;
 use std::sync::mpsc::{Receiver, RecvTimeoutError, Sender};

@@ -2,7 +2,7 @@
 //! posture removed) and `conformd model posture` (the posture model of a generic
 //! template).
 
-use super::JobError;
+use super::CommandError;
 use crate::measure::{Definitions, Measurement, PostureRemoval, Resolved};
 use crate::mesh;
 use crate::model::{Align, BuildOptions, ShapeModel};
@@ -14,7 +14,7 @@ pub fn posture_removal(
     source: &TemplateSource,
     model: Option<&Path>,
     resolved: &Resolved,
-) -> Result<PostureRemoval, JobError> {
+) -> Result<PostureRemoval, CommandError> {
     match (model, source.generic) {
         (Some(p), _) => Ok(PostureRemoval::Model(Box::new(ShapeModel::load(p)?))),
         (None, Some(kind)) => Ok(PostureRemoval::for_figure(
@@ -22,7 +22,7 @@ pub fn posture_removal(
             kind,
             resolved,
         )),
-        (None, None) => Err(JobError::Usage(
+        (None, None) => Err(CommandError::Usage(
             "--normalise-posture with a template mesh needs --model (a model with posture modes: `model build --posture`)"
                 .into(),
         )),
@@ -49,9 +49,9 @@ pub struct Repeatability {
 }
 
 /// [`Repeatability`] of `reports` (one subject's meshes); at least two are needed.
-pub fn repeatability(reports: &[MeasureReport]) -> Result<Repeatability, JobError> {
+pub fn repeatability(reports: &[MeasureReport]) -> Result<Repeatability, CommandError> {
     if reports.len() < 2 {
-        return Err(JobError::Usage(format!(
+        return Err(CommandError::Usage(format!(
             "--repeatability needs two meshes or more of one subject ({} given)",
             reports.len()
         )));
@@ -108,13 +108,13 @@ impl std::fmt::Display for Repeatability {
 pub fn definitions_for(
     source: &TemplateSource,
     definitions: Option<&Path>,
-) -> Result<Definitions, JobError> {
-    let bad = |e: crate::measure::MeasureError| JobError::Usage(e.to_string());
+) -> Result<Definitions, CommandError> {
+    let bad = |e: crate::measure::MeasureError| CommandError::Usage(e.to_string());
     match (definitions, source.generic) {
         (Some(p), _) => Definitions::read(p).map_err(bad),
         (None, Some(Kind::Pig)) => Definitions::parse(crate::measure::PIG, "pig").map_err(bad),
         (None, Some(Kind::Body)) => Definitions::parse(crate::measure::BODY, "body").map_err(bad),
-        (None, None) => Err(JobError::Usage(
+        (None, None) => Err(CommandError::Usage(
             "a template mesh needs its measurement definitions (--definitions FILE; see config/measurements/)"
                 .into(),
         )),
@@ -125,11 +125,11 @@ pub fn definitions_for(
 pub fn resolve_measurements(
     source: &TemplateSource,
     definitions: Option<&Path>,
-) -> Result<Resolved, JobError> {
+) -> Result<Resolved, CommandError> {
     let defs = definitions_for(source, definitions)?;
     let (template, landmarks) = source.load()?;
     defs.resolve(&template, landmarks.as_deref().unwrap_or(&[]))
-        .map_err(|e| JobError::Usage(e.to_string()))
+        .map_err(|e| CommandError::Usage(e.to_string()))
 }
 
 /// Measures a conformed mesh; with `posture`, also with its posture removed.
@@ -137,7 +137,7 @@ pub fn measure(
     mesh_path: &Path,
     resolved: &Resolved,
     posture: Option<&PostureRemoval>,
-) -> Result<MeasureReport, JobError> {
+) -> Result<MeasureReport, CommandError> {
     let m = mesh::read_mesh(mesh_path)?;
     measure_mesh(&mesh_path.display().to_string(), &m, resolved, posture)
 }
@@ -147,8 +147,8 @@ pub fn measure_mesh(
     m: &mesh::Mesh,
     resolved: &Resolved,
     posture: Option<&PostureRemoval>,
-) -> Result<MeasureReport, JobError> {
-    let bad = |source| JobError::Measure {
+) -> Result<MeasureReport, CommandError> {
+    let bad = |source| CommandError::Measure {
         mesh: name.into(),
         source,
     };
@@ -194,14 +194,14 @@ pub fn model_posture(
     postures: usize,
     degrees: f64,
     out: &Path,
-) -> Result<ShapeModel, JobError> {
+) -> Result<ShapeModel, CommandError> {
     if !(3..=1000).contains(&postures) {
-        return Err(JobError::Usage(format!(
+        return Err(CommandError::Usage(format!(
             "--postures must be 3 to 1000, got {postures}"
         )));
     }
     if !(degrees > 0.0 && template::POSE_DEGREES.contains(&degrees)) {
-        return Err(JobError::Usage(format!(
+        return Err(CommandError::Usage(format!(
             "--degrees must be above 0 and at most {}, got {degrees}",
             template::POSE_DEGREES.end()
         )));
@@ -213,7 +213,7 @@ pub fn model_posture(
         .map(|(i, p)| {
             template::subject(&fig, kind, &Default::default(), p)
                 .map(|m| (format!("posture {i}"), m))
-                .map_err(JobError::from)
+                .map_err(CommandError::from)
         })
         .collect::<Result<Vec<_>, _>>()?;
     let model = ShapeModel::build(
@@ -230,11 +230,11 @@ pub fn model_posture(
 
 /// The measurements a result folder's `report.json` holds: the posture-free ones when
 /// there are, else the raw ones; with the capture's subject.
-pub fn result_measurements(dir: &Path) -> Result<(Option<String>, Vec<Measurement>), JobError> {
+pub fn result_measurements(dir: &Path) -> Result<(Option<String>, Vec<Measurement>), CommandError> {
     let path = dir.join("report.json");
     let shown = path.display().to_string();
     let text = crate::files::read_text_limited(&path, 64 << 20)?;
-    let v: serde_json::Value = serde_json::from_str(&text).map_err(|e| JobError::Config {
+    let v: serde_json::Value = serde_json::from_str(&text).map_err(|e| CommandError::Config {
         path: shown.clone(),
         msg: e.to_string(),
     })?;
@@ -244,7 +244,7 @@ pub fn result_measurements(dir: &Path) -> Result<(Option<String>, Vec<Measuremen
     };
     let ms = pick("measurements_normalised")
         .or_else(|| pick("measurements"))
-        .ok_or_else(|| JobError::Config {
+        .ok_or_else(|| CommandError::Config {
             path: shown,
             msg: "has no measurements (a station measures when its template has definitions)"
                 .into(),
@@ -257,7 +257,7 @@ pub fn result_measurements(dir: &Path) -> Result<(Option<String>, Vec<Measuremen
 
 /// Reads `weights.csv` (`id,kg` rows: a capture id or a subject's tag; a header line
 /// is allowed): each row with its line.
-pub fn read_weights(path: &Path) -> Result<Vec<(String, f64)>, JobError> {
+pub fn read_weights(path: &Path) -> Result<Vec<(String, f64)>, CommandError> {
     let shown = path.display().to_string();
     let text = crate::files::read_text_limited(path, 16 << 20)?;
     let mut out: Vec<(String, f64)> = Vec::new();
@@ -270,7 +270,7 @@ pub fn read_weights(path: &Path) -> Result<Vec<(String, f64)>, JobError> {
         }
         let mut f = line.split(',').map(str::trim);
         let (Some(id), Some(kg), None) = (f.next(), f.next(), f.next()) else {
-            return Err(JobError::Config {
+            return Err(CommandError::Config {
                 path: shown,
                 msg: format!("line {}: expected `id,kg`, got '{line}'", i + 1),
             });
@@ -279,7 +279,7 @@ pub fn read_weights(path: &Path) -> Result<Vec<(String, f64)>, JobError> {
             Ok(kg) if kg.is_finite() && kg > 0.0 => match first.get(id) {
                 Some(&(_, earlier)) if earlier == kg => {}
                 Some(&(at, earlier)) => {
-                    return Err(JobError::Config {
+                    return Err(CommandError::Config {
                         path: shown,
                         msg: format!(
                             "line {}: '{id}' weighs {kg} kg here and {earlier} kg on line {at}; one weight per id",
@@ -294,7 +294,7 @@ pub fn read_weights(path: &Path) -> Result<Vec<(String, f64)>, JobError> {
             },
             _ if i == 0 => continue, // a header
             _ => {
-                return Err(JobError::Config {
+                return Err(CommandError::Config {
                     path: shown,
                     msg: format!("line {}: weight '{kg}' is not a positive number", i + 1),
                 });
@@ -312,10 +312,10 @@ pub fn model_weigh(
     results: &Path,
     features: Option<Vec<String>>,
     out: &Path,
-) -> Result<crate::measure::weight::WeightModel, JobError> {
+) -> Result<crate::measure::weight::WeightModel, CommandError> {
     let weighed = read_weights(weights)?;
     let mut all: Vec<(String, Option<String>, Vec<Measurement>)> = Vec::new();
-    let entries = std::fs::read_dir(results).map_err(|e| JobError::Io {
+    let entries = std::fs::read_dir(results).map_err(|e| CommandError::Io {
         path: results.display().to_string(),
         source: e,
     })?;
@@ -359,7 +359,7 @@ pub fn model_weigh(
             .unwrap_or_default(),
     };
     let model = crate::measure::weight::WeightModel::fit(&samples, &features)
-        .map_err(|e| JobError::Usage(e.to_string()))?;
+        .map_err(|e| CommandError::Usage(e.to_string()))?;
     crate::files::write_atomic(
         out,
         serde_json::to_string_pretty(&model)
@@ -370,8 +370,8 @@ pub fn model_weigh(
 }
 
 /// `export`: all results as CSV (see [`crate::station::export::export_csv`]).
-pub fn export_csv(results: &Path) -> Result<crate::station::export::Export, JobError> {
-    crate::station::export::export_csv(results).map_err(|e| JobError::Io {
+pub fn export_csv(results: &Path) -> Result<crate::station::export::Export, CommandError> {
+    crate::station::export::export_csv(results).map_err(|e| CommandError::Io {
         path: results.display().to_string(),
         source: e,
     })

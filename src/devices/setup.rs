@@ -1,4 +1,4 @@
-//! A station's rig from its config: the `[capture]` options, the optional `[trigger]`
+//! A station's devices from its config: the `[capture]` options, the optional `[trigger]`
 //! box, and the `[[cameras]]` (V4L2 devices, or replayed capture sets for testing and
 //! demonstration), opened into a capture session.
 

@@ -1,4 +1,4 @@
-//! Rig jobs: one capture with the station file's cameras and trigger.
+//! The capture command: one capture with the station file's cameras and trigger.
 
 use super::*;
 use std::path::Path;
@@ -7,10 +7,10 @@ use std::path::Path;
 pub fn capture(
     config: &Path,
     subject: Option<&str>,
-) -> Result<crate::rig::capture::CaptureSet, JobError> {
+) -> Result<crate::devices::capture::CaptureSet, CommandError> {
     let cfg = crate::station::StationConfig::load(config)?;
     let rig = cfg.rig_config()?;
-    std::fs::create_dir_all(&rig.root).map_err(|source| JobError::Io {
+    std::fs::create_dir_all(&rig.root).map_err(|source| CommandError::Io {
         path: rig.root.display().to_string(),
         source,
     })?;

@@ -9,19 +9,20 @@ use std::path::{Path, PathBuf};
 
 /// Reads conformation options from a TOML file: either a whole `conform.toml`, or a
 /// station file whose `[conform]` table holds them. Unknown keys are errors.
-pub fn load_conform_options(path: &Path) -> Result<ConformOptions, JobError> {
+pub fn load_conform_options(path: &Path) -> Result<ConformOptions, CommandError> {
     let name = path.display().to_string();
     let table = read_toml(path)?;
     if crate::station::config::is_station_file(&table) {
         return Ok(crate::station::StationConfig::load(path)?.conform);
     }
-    let opts: ConformOptions = table
-        .try_into()
-        .map_err(|e: toml::de::Error| JobError::Config {
-            path: name.clone(),
-            msg: e.to_string(),
-        })?;
-    opts.validate().map_err(|e| JobError::Config {
+    let opts: ConformOptions =
+        table
+            .try_into()
+            .map_err(|e: toml::de::Error| CommandError::Config {
+                path: name.clone(),
+                msg: e.to_string(),
+            })?;
+    opts.validate().map_err(|e| CommandError::Config {
         path: name,
         msg: e.to_string(),
     })?;
@@ -33,7 +34,7 @@ pub fn load_conform_options(path: &Path) -> Result<ConformOptions, JobError> {
 pub fn conform_options(
     config: Option<&Path>,
     method: Option<Method>,
-) -> Result<ConformOptions, JobError> {
+) -> Result<ConformOptions, CommandError> {
     let mut opts = match config {
         Some(p) => load_conform_options(p)?,
         None => ConformOptions::default(),
@@ -48,11 +49,11 @@ pub fn conform_options(
 }
 
 /// The `[template]` of a station file.
-pub fn template_from_config(path: &Path) -> Result<crate::template::TemplateSource, JobError> {
+pub fn template_from_config(path: &Path) -> Result<crate::template::TemplateSource, CommandError> {
     crate::station::StationConfig::load(path)?
         .template
         .ok_or_else(|| {
-            JobError::Usage(format!(
+            CommandError::Usage(format!(
                 "{}: no [template] table, and no template named",
                 path.display()
             ))
@@ -79,8 +80,8 @@ pub struct ConformFiles {
 pub fn conform_files(
     files: &ConformFiles,
     opts: &ConformOptions,
-    progress: &mut conform::Progress,
-) -> Result<ConformReport, JobError> {
+    progress: &mut conform::OnIteration,
+) -> Result<ConformReport, CommandError> {
     let ext = files
         .out
         .extension()
@@ -88,7 +89,7 @@ pub fn conform_files(
         .unwrap_or("")
         .to_ascii_lowercase();
     if ext != "ply" && ext != "obj" {
-        return Err(JobError::Usage(format!(
+        return Err(CommandError::Usage(format!(
             "{}: the output must be a .ply or .obj file",
             files.out.display()
         )));
@@ -103,7 +104,7 @@ pub fn conform_files(
         (Some(t), Some(s)) => Some((t, mesh::read_landmarks(s)?)),
         (_, None) => None,
         (None, Some(_)) => {
-            return Err(JobError::Usage(
+            return Err(CommandError::Usage(
                 "scan landmarks need template landmarks too (a template landmark file, or the template's own)".into(),
             ));
         }
@@ -153,14 +154,14 @@ pub struct DemoFigures {
 pub fn demo_paper(
     out_dir: &Path,
     progress: &mut (dyn FnMut(Method, &IterationReport) + Send),
-) -> Result<DemoSummary, JobError> {
-    std::fs::create_dir_all(out_dir).map_err(|source| JobError::Io {
+) -> Result<DemoSummary, CommandError> {
+    std::fs::create_dir_all(out_dir).map_err(|source| CommandError::Io {
         path: out_dir.display().to_string(),
         source,
     })?;
     let case = cases::sphere_to_box_with_missing(4);
     let mut files = Vec::new();
-    let mut put = |name: &str, bytes: &[u8]| -> Result<(), JobError> {
+    let mut put = |name: &str, bytes: &[u8]| -> Result<(), CommandError> {
         let p = out_dir.join(name);
         write_atomic(&p, bytes)?;
         files.push(p);
@@ -269,13 +270,13 @@ pub struct MeshInfo {
 }
 
 /// Describes a mesh file (and compares it with `original` when given).
-pub fn info(path: &Path, original: Option<&Path>) -> Result<MeshInfo, JobError> {
+pub fn info(path: &Path, original: Option<&Path>) -> Result<MeshInfo, CommandError> {
     let m: Mesh = mesh::read_mesh(path)?;
     let variation = match original {
         Some(o) => {
             let o = mesh::read_mesh(o)?;
             if o.vertices.len() != m.vertices.len() || o.triangles != m.triangles {
-                return Err(JobError::Usage(format!(
+                return Err(CommandError::Usage(format!(
                     "{} and {} do not share a topology, so their variations cannot be compared",
                     path.display(),
                     original.unwrap().display()

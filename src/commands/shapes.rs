@@ -31,10 +31,10 @@ pub fn template(
     pose: &str,
     shape: &str,
     out: &Path,
-) -> Result<TemplateSummary, JobError> {
+) -> Result<TemplateSummary, CommandError> {
     use crate::template as templates;
     if !(500..=200_000).contains(&vertices) {
-        return Err(JobError::Usage(format!(
+        return Err(CommandError::Usage(format!(
             "a generic template has 500 to 200000 vertices, not {vertices}"
         )));
     }
@@ -114,16 +114,16 @@ pub fn render(
     width: u32,
     height: u32,
     out: &Path,
-) -> Result<(), JobError> {
+) -> Result<(), CommandError> {
     use crate::render::{self, Colouring, RenderOptions, View};
     if !(64..=8192).contains(&width) || !(64..=8192).contains(&height) {
-        return Err(JobError::Usage(format!(
+        return Err(CommandError::Usage(format!(
             "image size {width}x{height}: each side must be 64 to 8192 pixels"
         )));
     }
     let m = mesh::read_mesh(mesh_path)?;
     if m.triangles.is_empty() {
-        return Err(JobError::Usage(format!(
+        return Err(CommandError::Usage(format!(
             "{}: a point cloud has no surface to render",
             mesh_path.display()
         )));
@@ -132,7 +132,7 @@ pub fn render(
         .iter()
         .map(|v| {
             View::named(v).ok_or_else(|| {
-                JobError::Usage(format!(
+                CommandError::Usage(format!(
                     "unknown view '{v}' (front, back, left, right, side, top, three-quarter)"
                 ))
             })
@@ -144,7 +144,7 @@ pub fn render(
         ColourBy::DistanceTo(scan) => {
             let s = mesh::read_mesh(scan)?;
             let surface = conform::correspond::ScanSurface::new(&s)
-                .map_err(|e| JobError::Usage(format!("{}: {e}", scan.display())))?;
+                .map_err(|e| CommandError::Usage(format!("{}: {e}", scan.display())))?;
             Colouring::distances(
                 m.vertices.iter().map(|p| surface.distance(p)).collect(),
                 "MESH UNITS",
@@ -173,11 +173,11 @@ pub fn model_build(
     opts: &crate::model::BuildOptions,
     out: &Path,
     quality: bool,
-) -> Result<(crate::model::ShapeModel, Option<crate::model::Quality>), JobError> {
+) -> Result<(crate::model::ShapeModel, Option<crate::model::Quality>), CommandError> {
     let samples = paths
         .iter()
         .map(|p| Ok((p.display().to_string(), mesh::read_mesh(p)?)))
-        .collect::<Result<Vec<_>, JobError>>()?;
+        .collect::<Result<Vec<_>, CommandError>>()?;
     let model = crate::model::ShapeModel::build(&samples, opts)?;
     model.save(out)?;
     let q = if quality {
@@ -196,23 +196,23 @@ pub fn model_modes(
     sigma: f64,
     view: &str,
     out_dir: &Path,
-) -> Result<Vec<PathBuf>, JobError> {
+) -> Result<Vec<PathBuf>, CommandError> {
     use crate::render::{self, Colouring, RenderOptions, View};
     if !(sigma > 0.0 && sigma <= 10.0) {
-        return Err(JobError::Usage(format!(
+        return Err(CommandError::Usage(format!(
             "sigma = {sigma}: the modes are drawn at 0 to 10 standard deviations"
         )));
     }
     if !(1..=50).contains(&modes) {
-        return Err(JobError::Usage(format!("{modes} modes: draw 1 to 50")));
+        return Err(CommandError::Usage(format!("{modes} modes: draw 1 to 50")));
     }
     let model = crate::model::ShapeModel::load(model_path)?;
-    std::fs::create_dir_all(out_dir).map_err(|source| JobError::Io {
+    std::fs::create_dir_all(out_dir).map_err(|source| CommandError::Io {
         path: out_dir.display().to_string(),
         source,
     })?;
     let view =
-        View::named(view).ok_or_else(|| JobError::Usage(format!("unknown view '{view}'")))?;
+        View::named(view).ok_or_else(|| CommandError::Usage(format!("unknown view '{view}'")))?;
     let k = modes.min(model.modes.len());
     let mut files = Vec::new();
     let mean = model.instance_mesh(&[]);
@@ -260,7 +260,7 @@ pub fn model_modes(
 pub fn model_score(
     model_path: &Path,
     paths: &[PathBuf],
-) -> Result<Vec<crate::model::Score>, JobError> {
+) -> Result<Vec<crate::model::Score>, CommandError> {
     let model = crate::model::ShapeModel::load(model_path)?;
     paths
         .iter()
@@ -324,16 +324,16 @@ pub fn autorig(
     limbs: usize,
     out: &Path,
     preview: Option<&Path>,
-) -> Result<AutorigSummary, JobError> {
+) -> Result<AutorigSummary, CommandError> {
     use crate::template::rig::{AutoRigSettings, TemplateRig};
     if !(1..=32).contains(&limbs) {
-        return Err(JobError::Usage(format!(
+        return Err(CommandError::Usage(format!(
             "--limbs {limbs}: between 1 and 32 extremities are tried"
         )));
     }
     let mesh = mesh::read_mesh(mesh_path)?;
     let name = mesh_path.display().to_string();
-    mesh.validate(&name).map_err(JobError::Usage)?;
+    mesh.validate(&name).map_err(CommandError::Usage)?;
     let settings = AutoRigSettings {
         limbs,
         ..Default::default()
@@ -374,7 +374,7 @@ fn rig_picture(
     mesh: &mesh::Mesh,
     rig: &crate::template::rig::TemplateRig,
     out: &Path,
-) -> Result<(), JobError> {
+) -> Result<(), CommandError> {
     use crate::render::{self, Colouring, RenderOptions, View};
     let mut m = mesh.clone();
     m.groups.clear();

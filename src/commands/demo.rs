@@ -112,16 +112,16 @@ fn wait(
     what: &str,
     limit: Duration,
     mut done: impl FnMut() -> bool,
-) -> Result<(), JobError> {
+) -> Result<(), CommandError> {
     let t = Instant::now();
     while !done() {
         if !daemon.running() {
-            return Err(JobError::Usage(format!(
+            return Err(CommandError::Usage(format!(
                 "demo: the daemon stopped (Ctrl-C, SIGTERM, or an error logged above) while waiting for {what}"
             )));
         }
         if t.elapsed() > limit {
-            return Err(JobError::Usage(format!(
+            return Err(CommandError::Usage(format!(
                 "demo: waited {limit:?} for {what}"
             )));
         }
@@ -139,14 +139,14 @@ pub fn demo_station(
     progress: &mut dyn FnMut(&str, u64, u64),
     show: &mut dyn FnMut(&StationDemo),
     keep_running: &mut dyn FnMut() -> bool,
-) -> Result<StationDemo, JobError> {
-    let out = std::path::absolute(out).map_err(|source| JobError::Io {
+) -> Result<StationDemo, CommandError> {
+    let out = std::path::absolute(out).map_err(|source| CommandError::Io {
         path: out.display().to_string(),
         source,
     })?;
     let io = |p: &Path| {
         let p = p.display().to_string();
-        move |source| JobError::Io { path: p, source }
+        move |source| CommandError::Io { path: p, source }
     };
     if out.join("station").exists() {
         std::fs::remove_dir_all(out.join("station")).map_err(io(&out))?;
@@ -171,7 +171,7 @@ pub fn demo_station(
 
     // the station: replay cameras, the simulated box, the daemon
     let trigger = crate::synth::trigger_box::SimulatedBox::start().map_err(|e| {
-        JobError::Usage(format!("demo: no pseudo-terminal for the trigger box: {e}"))
+        CommandError::Usage(format!("demo: no pseudo-terminal for the trigger box: {e}"))
     })?;
     let port = std::net::TcpListener::bind("127.0.0.1:0")
         .and_then(|l| l.local_addr())
@@ -254,7 +254,7 @@ fn fire_and_process(
     daemon: &Handle,
     trigger: &crate::synth::trigger_box::SimulatedBox,
     progress: &mut dyn FnMut(&str, u64, u64),
-) -> Result<(), JobError> {
+) -> Result<(), CommandError> {
     let shared = daemon.shared.clone();
     wait(daemon, "the trigger box", Duration::from_secs(20), || {
         shared

@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 /// Reads and checks a station file; the error lists every problem with its line.
 ///
 /// Example: `conformd check config/station.example.toml`; see `tests/pipeline.rs`.
-pub fn check(config: &Path) -> Result<StationConfig, JobError> {
+pub fn check(config: &Path) -> Result<StationConfig, CommandError> {
     let cfg = StationConfig::load(config)?;
     check_files(&cfg)?;
     Ok(cfg)
@@ -20,9 +20,9 @@ pub fn check(config: &Path) -> Result<StationConfig, JobError> {
 /// use (template, landmarks, groups, rig, calibrations, measurement definitions, posture
 /// model, weights, shape model), and checks the replay folders and the worker program,
 /// so a station that passes `check` does not fail on its first capture.
-fn check_files(cfg: &StationConfig) -> Result<(), JobError> {
+fn check_files(cfg: &StationConfig) -> Result<(), CommandError> {
     let name = cfg.file.display().to_string();
-    let fail = |msg: String| JobError::Config {
+    let fail = |msg: String| CommandError::Config {
         path: name.clone(),
         msg,
     };
@@ -117,7 +117,7 @@ pub fn process(
     write: Write,
     template_cache: Option<&Path>,
     progress: &mut (dyn FnMut(Progress) + Send),
-) -> Result<(PathBuf, ProcessReport), JobError> {
+) -> Result<(PathBuf, ProcessReport), CommandError> {
     crate::files::refuse_inside(out, capture, "the capture set")?;
     let landmarks = landmarks.map(crate::mesh::read_landmarks).transpose()?;
     let cfg = StationConfig::load(config)?;
@@ -146,12 +146,12 @@ pub enum Write {
 
 /// The outcome line `conformd process --json` prints for `r`.
 pub fn process_outcome(
-    r: &Result<(PathBuf, ProcessReport), JobError>,
+    r: &Result<(PathBuf, ProcessReport), CommandError>,
     write: Write,
 ) -> ProcessOutcome {
     match r {
         Ok((dir, report)) => ProcessOutcome::done(dir.clone(), report, write == Write::Stage),
-        Err(JobError::Stage(s)) => ProcessOutcome::failed(s),
+        Err(CommandError::Stage(s)) => ProcessOutcome::failed(s),
         Err(e) => ProcessOutcome::failed_at(None, Stage::Setup, false, e.to_string()),
     }
 }

@@ -2,7 +2,7 @@
 //! reconstruction.
 
 use super::*;
-use crate::rig::capture_set::CaptureSetDir;
+use crate::devices::capture_set::CaptureSetDir;
 use crate::stereo::rig::Reconstruction;
 use std::path::{Path, PathBuf};
 
@@ -18,7 +18,7 @@ pub fn simulate(
     captures: usize,
     noise: f64,
     out: &Path,
-) -> Result<Vec<PathBuf>, JobError> {
+) -> Result<Vec<PathBuf>, CommandError> {
     let out_existed = out.exists();
     let calib_existed = out.join("calibration").exists();
     let mut written: Vec<PathBuf> = Vec::new();
@@ -43,9 +43,9 @@ pub fn simulate(
 }
 
 /// Sensor noise in grey levels: 0 to 100 (beyond that an image is noise alone).
-fn check_noise(noise: f64) -> Result<(), JobError> {
+fn check_noise(noise: f64) -> Result<(), CommandError> {
     if !(0.0..=100.0).contains(&noise) {
-        return Err(JobError::Usage(format!(
+        return Err(CommandError::Usage(format!(
             "--noise {noise}: sensor noise must be 0 to 100 grey levels"
         )));
     }
@@ -61,7 +61,7 @@ fn simulate_into(
     noise: f64,
     out: &Path,
     written: &mut Vec<PathBuf>,
-) -> Result<Vec<PathBuf>, JobError> {
+) -> Result<Vec<PathBuf>, CommandError> {
     use crate::template as templates;
     check_noise(noise)?;
     let rig = crate::stereo::rig::RigFile::load(rig_path)?;
@@ -82,7 +82,7 @@ fn simulate_into(
         }
         _ => mesh::read_mesh(Path::new(subject))?,
     };
-    let io = |p: &Path, source| JobError::Io {
+    let io = |p: &Path, source| CommandError::Io {
         path: p.display().to_string(),
         source,
     };
@@ -99,7 +99,7 @@ fn simulate_into(
     }
     let mut dirs = Vec::new();
     for n in 0..captures {
-        let images = crate::synth::rig::render_rig(&rig, &mesh, noise, n as u64)
+        let images = crate::synth::virtual_rig::render_rig(&rig, &mesh, noise, n as u64)
             .into_iter()
             .map(|r| (r.pod, r.side, r.width, r.height, r.pixels))
             .collect();
@@ -149,7 +149,7 @@ fn write_simulated_set(
     subject: &str,
     images: Vec<SimImage>,
     extra: &[(&str, Vec<u8>)],
-) -> Result<PathBuf, JobError> {
+) -> Result<PathBuf, CommandError> {
     write_set(
         out,
         ("simulated", "sim"),
@@ -171,8 +171,8 @@ fn write_set(
     subject: &str,
     images: Vec<SimImage>,
     extra: &[(&str, Vec<u8>)],
-) -> Result<PathBuf, JobError> {
-    use crate::rig::capture::{CameraRecord, Manifest, TriggerRecord, utc_stamp};
+) -> Result<PathBuf, CommandError> {
+    use crate::devices::capture::{CameraRecord, Manifest, TriggerRecord, utc_stamp};
     let id = format!("{}-{tag}{n:03}", utc_stamp(std::time::SystemTime::now()));
     let mut cameras = Vec::new();
     let mut files = Vec::new();
@@ -213,11 +213,11 @@ fn write_set(
         },
         cameras,
     };
-    std::fs::create_dir_all(out).map_err(|source| JobError::Io {
+    std::fs::create_dir_all(out).map_err(|source| CommandError::Io {
         path: out.display().to_string(),
         source,
     })?;
-    Ok(crate::rig::capture_set::write_capture_set(
+    Ok(crate::devices::capture_set::write_capture_set(
         out, &manifest, &files,
     )?)
 }
@@ -233,9 +233,9 @@ pub fn simulate_placement(
     yaw: f64,
     noise: f64,
     out: &Path,
-) -> Result<PathBuf, JobError> {
+) -> Result<PathBuf, CommandError> {
     use crate::stereo::rig::RigFile;
-    use crate::synth::rig::{Chessboard, placement_board, render_chessboard};
+    use crate::synth::virtual_rig::{Chessboard, placement_board, render_chessboard};
     check_noise(noise)?;
     let (cols, rows) = parse_board(board)?;
     let rig = RigFile::load(rig_path)?;
@@ -317,7 +317,7 @@ pub fn calibrate_placement(
     square: f64,
     placement: &crate::stereo::calibrate::BoardPlacement,
     out: &Path,
-) -> Result<Vec<PodPlacement>, JobError> {
+) -> Result<Vec<PodPlacement>, CommandError> {
     use crate::stereo::calib::Pose;
     let (cols, rows) = parse_board(board)?;
     let station = Reconstruction::load(rig_path, calibration)?;
@@ -331,7 +331,7 @@ pub fn calibrate_placement(
             let img = set.grey_image(&pod.id, side, (k.width, k.height))?;
             let cam = set.camera(&pod.id, side)?;
             let named = |what: String| {
-                JobError::Usage(format!(
+                CommandError::Usage(format!(
                     "camera {} ({}): {what}",
                     cam.id,
                     capture.join(&cam.file).display()
@@ -396,7 +396,7 @@ pub fn reconstruct_with(
     out: &Path,
     report_path: Option<&Path>,
     as_mesh: bool,
-) -> Result<crate::stereo::reconstruct::ReconstructReport, JobError> {
+) -> Result<crate::stereo::reconstruct::ReconstructReport, CommandError> {
     Ok(reconstruct_scan(station, capture, out, report_path, as_mesh)?.1)
 }
 
@@ -407,7 +407,7 @@ pub fn reconstruct_scan(
     out: &Path,
     report_path: Option<&Path>,
     as_mesh: bool,
-) -> Result<(mesh::Mesh, crate::stereo::reconstruct::ReconstructReport), JobError> {
+) -> Result<(mesh::Mesh, crate::stereo::reconstruct::ReconstructReport), CommandError> {
     let (scan, report) = reconstruct_in_memory(station, capture, as_mesh)?;
     write_scan(out, report_path, &scan, &report)?;
     Ok((scan, report))
@@ -435,7 +435,7 @@ pub fn reconstruct_scored(
         crate::stereo::reconstruct::ReconstructReport,
         Option<crate::stereo::truth::DepthScore>,
     ),
-    JobError,
+    CommandError,
 > {
     let (scan, report) = reconstruct_in_memory(station, capture, as_mesh)?;
     let score = truth
@@ -449,12 +449,12 @@ fn reconstruct_in_memory(
     station: &mut Reconstruction,
     capture: &Path,
     as_mesh: bool,
-) -> Result<(mesh::Mesh, crate::stereo::reconstruct::ReconstructReport), JobError> {
+) -> Result<(mesh::Mesh, crate::stereo::reconstruct::ReconstructReport), CommandError> {
     let set = CaptureSetDir::open(capture)?;
     let images = crate::station::pipeline::read_pod_images(&set, &station.pods)?;
     station
         .run(&images.pixels, as_mesh)
-        .map_err(|e| JobError::Reconstruct(format!("{e}; images: {}", images.named(e.pod()))))
+        .map_err(|e| CommandError::Reconstruct(format!("{e}; images: {}", images.named(e.pod()))))
 }
 
 fn write_scan(
@@ -462,7 +462,7 @@ fn write_scan(
     report_path: Option<&Path>,
     scan: &mesh::Mesh,
     report: &crate::stereo::reconstruct::ReconstructReport,
-) -> Result<(), JobError> {
+) -> Result<(), CommandError> {
     mesh::write_mesh(out, scan)?;
     if let Some(p) = report_path {
         write_report(p, report)?;
@@ -486,17 +486,17 @@ pub fn reconstruct(
     out: &Path,
     report_path: Option<&Path>,
     as_mesh: bool,
-) -> Result<crate::stereo::reconstruct::ReconstructReport, JobError> {
+) -> Result<crate::stereo::reconstruct::ReconstructReport, CommandError> {
     let mut station = Reconstruction::load(rig_path, calibration)?;
     reconstruct_with(&mut station, capture, out, report_path, as_mesh)
 }
 
 /// An image file in grey (a regular file of at most [`crate::files::MAX_IMAGE_BYTES`]),
 /// refused naming the file.
-fn read_grey(p: &Path) -> Result<image::GrayImage, JobError> {
+fn read_grey(p: &Path) -> Result<image::GrayImage, CommandError> {
     let bytes = crate::files::read_limited(p, crate::files::MAX_IMAGE_BYTES)?;
     Ok(image::load_from_memory(&bytes)
-        .map_err(|e| JobError::Usage(format!("{}: not a readable image: {e}", p.display())))?
+        .map_err(|e| CommandError::Usage(format!("{}: not a readable image: {e}", p.display())))?
         .to_luma8())
 }
 
@@ -505,10 +505,10 @@ fn read_grey(p: &Path) -> Result<image::GrayImage, JobError> {
 fn read_rectified_pair(
     left: &Path,
     right: &Path,
-) -> Result<(image::GrayImage, image::GrayImage), JobError> {
+) -> Result<(image::GrayImage, image::GrayImage), CommandError> {
     let (l, r) = (read_grey(left)?, read_grey(right)?);
     if l.dimensions() != r.dimensions() {
-        return Err(JobError::Usage(format!(
+        return Err(CommandError::Usage(format!(
             "{} is {:?} but {} is {:?}: a rectified pair has one size",
             left.display(),
             l.dimensions(),
@@ -525,7 +525,7 @@ pub fn disparity(
     right: &Path,
     opts: &crate::stereo::disparity::SgbmOptions,
     out: &Path,
-) -> Result<crate::stereo::disparity::Disparity, JobError> {
+) -> Result<crate::stereo::disparity::Disparity, CommandError> {
     disparity_scored(left, right, opts, out, None, None).map(|(d, _)| d)
 }
 
@@ -553,7 +553,7 @@ pub fn disparity_scored(
         crate::stereo::disparity::Disparity,
         Option<crate::stereo::truth::TruthScore>,
     ),
-    JobError,
+    CommandError,
 > {
     let ext = out
         .extension()
@@ -561,7 +561,7 @@ pub fn disparity_scored(
         .unwrap_or("")
         .to_ascii_lowercase();
     if ext != "pfm" && ext != "png" {
-        return Err(JobError::Usage(format!(
+        return Err(CommandError::Usage(format!(
             "{}: a disparity map is written as .pfm (float) or .png (16-bit, x16)",
             out.display()
         )));
@@ -571,12 +571,12 @@ pub fn disparity_scored(
         .map(|t| {
             crate::stereo::truth::read_truth(t.file, t.scale)
                 .map(|read| (t, read))
-                .map_err(JobError::from)
+                .map_err(CommandError::from)
         })
         .transpose()?;
     let (l, r) = read_rectified_pair(left, right)?;
     if opts.num_disparities as u32 >= l.width() {
-        return Err(JobError::Usage(format!(
+        return Err(CommandError::Usage(format!(
             "{} disparities cannot be searched in an image {} pixels wide",
             opts.num_disparities,
             l.width()
@@ -585,7 +585,7 @@ pub fn disparity_scored(
     if let Some(c) = confidence_out
         && !c.extension().is_some_and(|e| e.eq_ignore_ascii_case("pfm"))
     {
-        return Err(JobError::Usage(format!(
+        return Err(CommandError::Usage(format!(
             "{}: a confidence map is written as .pfm (float, 0 to 1)",
             c.display()
         )));
@@ -598,7 +598,7 @@ pub fn disparity_scored(
         opts,
     )?;
     if d.valid_share() == 0.0 {
-        return Err(JobError::Usage(format!(
+        return Err(CommandError::Usage(format!(
             "no pixel of {} found its match in {}: the pair has no texture to match (or is not a rectified pair)",
             left.display(),
             right.display()
@@ -624,7 +624,7 @@ pub fn disparity_scored(
     };
     let score = truth
         .map(|(t, read)| {
-            crate::stereo::truth::score(&d, &read, t.min_x).map_err(JobError::scoring(t.file))
+            crate::stereo::truth::score(&d, &read, t.min_x).map_err(CommandError::scoring(t.file))
         })
         .transpose()?;
     write_atomic(out, &bytes)?;
@@ -644,9 +644,9 @@ pub fn score_disparity(
     truth: &Path,
     scale: Option<f64>,
     min_x: u32,
-) -> Result<crate::stereo::truth::TruthScore, JobError> {
+) -> Result<crate::stereo::truth::TruthScore, CommandError> {
     let t = crate::stereo::truth::read_truth(truth, scale)?;
-    crate::stereo::truth::score(d, &t, min_x).map_err(JobError::scoring(truth))
+    crate::stereo::truth::score(d, &t, min_x).map_err(CommandError::scoring(truth))
 }
 
 /// What `import-pair` wrote: the rig file, the calibration folder and the capture set.
@@ -676,11 +676,11 @@ pub fn import_pair(
     truth: Option<&Path>,
     num_disparities: Option<i32>,
     out: &Path,
-) -> Result<ImportedPair, JobError> {
+) -> Result<ImportedPair, CommandError> {
     let (l, r) = read_rectified_pair(left, right)?;
     let calib_text = crate::files::read_limited(calib, 1 << 20)?;
     let cal = crate::stereo::recorded::parse_calibration(&String::from_utf8_lossy(&calib_text))
-        .map_err(|e| JobError::Usage(format!("{}: {e}", calib.display())))?;
+        .map_err(|e| CommandError::Usage(format!("{}: {e}", calib.display())))?;
     let ndisp = num_disparities.unwrap_or_else(|| match cal.ndisp {
         Some(n) => (n as i32 + 15) / 16 * 16,
         None => 128,
@@ -689,7 +689,7 @@ pub fn import_pair(
     if let Some((cw, ch)) = cal.size
         && (cw, ch) != (w, h)
     {
-        return Err(JobError::Usage(format!(
+        return Err(CommandError::Usage(format!(
             "{}: the calibration is for {cw}x{ch} images, {} is {w}x{h}",
             calib.display(),
             left.display()
@@ -707,7 +707,7 @@ pub fn import_pair(
         let bytes = crate::files::read_limited(t, crate::files::MAX_IMAGE_BYTES)?;
         let parsed = crate::stereo::truth::parse_truth(t, &bytes, None)?;
         if (parsed.width, parsed.height) != (w, h) {
-            return Err(JobError::Usage(format!(
+            return Err(CommandError::Usage(format!(
                 "{}: the truth is {} x {}, the images {w} x {h}",
                 t.display(),
                 parsed.width,
@@ -724,10 +724,10 @@ pub fn import_pair(
         .unwrap_or("recorded");
     let name = format!("replay-{stem}");
     let rig = cal.rig_file(&name, IMPORTED_POD, (w, h), ndisp);
-    rig.check().map_err(JobError::Usage)?;
+    rig.check().map_err(CommandError::Usage)?;
     let rig_path = out.join("rig.toml");
     let cal_dir = out.join("calibration");
-    std::fs::create_dir_all(&cal_dir).map_err(|source| JobError::Io {
+    std::fs::create_dir_all(&cal_dir).map_err(|source| CommandError::Io {
         path: cal_dir.display().to_string(),
         source,
     })?;
@@ -774,16 +774,15 @@ pub fn score_scan(
     pod: Option<&str>,
     truth: &Path,
     scale: Option<f64>,
-) -> Result<crate::stereo::truth::DepthScore, JobError> {
-    let p =
-        match pod {
-            Some(id) => station.pods.iter().find(|p| p.id == id).ok_or_else(|| {
-                JobError::Usage(format!("--truth-pod {id}: the rig has no such pod"))
-            })?,
-            None => &station.pods[0],
-        };
+) -> Result<crate::stereo::truth::DepthScore, CommandError> {
+    let p = match pod {
+        Some(id) => station.pods.iter().find(|p| p.id == id).ok_or_else(|| {
+            CommandError::Usage(format!("--truth-pod {id}: the rig has no such pod"))
+        })?,
+        None => &station.pods[0],
+    };
     let t = crate::stereo::truth::read_truth(truth, scale)?;
-    crate::stereo::truth::score_depth(&scan.vertices, p, &t).map_err(JobError::scoring(truth))
+    crate::stereo::truth::score_depth(&scan.vertices, p, &t).map_err(CommandError::scoring(truth))
 }
 
 /// Renders chessboard calibration views for every pod of the rig: `out/<pod>/leftNN.png`
@@ -794,12 +793,12 @@ pub fn simulate_chessboard(
     square: f64,
     views: usize,
     out: &Path,
-) -> Result<Vec<PathBuf>, JobError> {
+) -> Result<Vec<PathBuf>, CommandError> {
     use crate::stereo::rig::RigFile;
-    use crate::synth::rig::{Chessboard, chessboard_poses, render_chessboard};
+    use crate::synth::virtual_rig::{Chessboard, chessboard_poses, render_chessboard};
     let (cols, rows) = parse_board(board)?;
     if !(square > 0.0) {
-        return Err(JobError::Usage(format!(
+        return Err(CommandError::Usage(format!(
             "the chessboard's square size must be positive, got {square}"
         )));
     }
@@ -808,7 +807,7 @@ pub fn simulate_chessboard(
     let mut dirs = Vec::new();
     for (pod, spec) in rig.pods().iter().zip(&rig.pods) {
         let dir = out.join(&pod.id);
-        std::fs::create_dir_all(&dir).map_err(|source| JobError::Io {
+        std::fs::create_dir_all(&dir).map_err(|source| CommandError::Io {
             path: dir.display().to_string(),
             source,
         })?;
@@ -836,7 +835,7 @@ pub fn calibrate(
     board: &str,
     square: f64,
     out: &Path,
-) -> Result<crate::stereo::calibrate::CalibrationReport, JobError> {
+) -> Result<crate::stereo::calibrate::CalibrationReport, CommandError> {
     let (cols, rows) = parse_board(board)?;
     let list = |dir: &Path, prefix: &str| -> Vec<PathBuf> {
         let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
@@ -862,7 +861,7 @@ pub fn calibrate(
         (list(images, "left"), list(images, "right"))
     };
     if lefts.is_empty() || lefts.len() != rights.len() {
-        return Err(JobError::Usage(format!(
+        return Err(CommandError::Usage(format!(
             "{}: found {} left and {} right images; expected pairs leftNN/rightNN (or folders left/ and right/)",
             images.display(),
             lefts.len(),
@@ -875,7 +874,7 @@ pub fn calibrate(
         let (a, b) = (read_grey(l)?, read_grey(r)?);
         let dims = a.dimensions();
         if b.dimensions() != dims || size.is_some_and(|s| s != dims) {
-            return Err(JobError::Usage(format!(
+            return Err(CommandError::Usage(format!(
                 "{}: its size differs from the other views",
                 r.display()
             )));

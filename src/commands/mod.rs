@@ -1,20 +1,21 @@
-//! What a user can do from the CLI, as library calls, one file per stage: conformation
-//! (`conformation`), templates, previews and shape models (`shapes`), rig captures (`rig`),
+//! What a user can do from the CLI (its commands), as library calls, one file per stage:
+//! conformation (`conformation`), templates, previews and shape models (`shapes`), captures
+//! with the station's devices (`capture`),
 //! simulation, calibration and reconstruction (`stereo`). The CLI, the tests and the
 //! daemon call exactly these.
 
+mod capture;
 mod conformation;
 mod demo;
 mod measure;
-mod rig;
 mod shapes;
 mod station;
 mod stereo;
 
+pub use capture::*;
 pub use conformation::*;
 pub use demo::*;
 pub use measure::*;
-pub use rig::*;
 pub use shapes::*;
 pub use station::*;
 pub use stereo::*;
@@ -26,7 +27,7 @@ use std::path::Path;
 /// Why a job failed: the typed error of the stage that failed, or a sentence about the
 /// request itself (`Usage`).
 #[derive(Debug, thiserror::Error)]
-pub enum JobError {
+pub enum CommandError {
     #[error(transparent)]
     File(#[from] mesh::FileError),
     #[error("{path}: {msg}")]
@@ -36,11 +37,11 @@ pub enum JobError {
     #[error("{0}")]
     Conform(#[from] crate::conform::ConformError),
     #[error(transparent)]
-    CaptureSet(#[from] crate::rig::capture_set::CaptureSetError),
+    CaptureSet(#[from] crate::devices::capture_set::CaptureSetError),
     #[error(transparent)]
-    Capture(#[from] crate::rig::capture::CaptureError),
+    Capture(#[from] crate::devices::capture::CaptureError),
     #[error(transparent)]
-    Rig(#[from] crate::rig::station::StationError),
+    Rig(#[from] crate::devices::setup::StationError),
     #[error(transparent)]
     Daemon(#[from] crate::daemon::DaemonError),
     #[error(transparent)]
@@ -83,11 +84,11 @@ pub enum JobError {
     },
 }
 
-impl JobError {
+impl CommandError {
     /// A truth read from `path` that a result could not be scored against.
-    fn scoring(path: &Path) -> impl FnOnce(crate::stereo::truth::TruthError) -> JobError {
+    fn scoring(path: &Path) -> impl FnOnce(crate::stereo::truth::TruthError) -> CommandError {
         let path = path.display().to_string();
-        move |source| JobError::Scoring { path, source }
+        move |source| CommandError::Scoring { path, source }
     }
 }
 
@@ -95,25 +96,25 @@ impl JobError {
 const MAX_CONFIG_BYTES: u64 = 1 << 20;
 
 /// Reads a TOML file into a table; errors name the file.
-fn read_toml(path: &Path) -> Result<toml::Table, JobError> {
+fn read_toml(path: &Path) -> Result<toml::Table, CommandError> {
     let name = path.display().to_string();
     let text = crate::files::read_text_limited(path, MAX_CONFIG_BYTES)?;
-    toml::from_str(&text).map_err(|e| JobError::Config {
+    toml::from_str(&text).map_err(|e| CommandError::Config {
         path: name,
         msg: e.to_string(),
     })
 }
 
-fn write_report<T: serde::Serialize>(path: &Path, report: &T) -> Result<(), JobError> {
+fn write_report<T: serde::Serialize>(path: &Path, report: &T) -> Result<(), CommandError> {
     let json = serde_json::to_string_pretty(report).expect("reports serialise");
     write_atomic(path, json.as_bytes())?;
     Ok(())
 }
 
 /// Parses `9x6` (inner corners).
-pub fn parse_board(s: &str) -> Result<(u32, u32), JobError> {
+pub fn parse_board(s: &str) -> Result<(u32, u32), CommandError> {
     let bad = || {
-        JobError::Usage(format!(
+        CommandError::Usage(format!(
             "board '{s}': expected COLSxROWS inner corners, e.g. 9x6"
         ))
     };
