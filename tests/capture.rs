@@ -279,43 +279,10 @@ fn a_hundred_captures_leave_a_hundred_sets() {
     );
 }
 
-/// A station file with two synthetic cameras writing to `captures/` beside it.
-fn synthetic_station(dir: &Path) -> std::path::PathBuf {
-    let cfg = dir.join("station.toml");
-    std::fs::write(
-        &cfg,
-        r#"
-[capture]
-root = "captures"
-station = "crate-1"
-window_ms = 500
-[capture.camera_settings]
-format = "GREY"
-width = 32
-height = 24
-external_trigger = false
-
-[[cameras]]
-id = "pod1-left"
-pod = "pod1"
-side = "left"
-synthetic = true
-
-[[cameras]]
-id = "pod1-right"
-pod = "pod1"
-side = "right"
-synthetic = true
-"#,
-    )
-    .unwrap();
-    cfg
-}
-
 #[test]
 fn capture_from_a_station_config() {
     let dir = tempfile::tempdir().unwrap();
-    let cfg = synthetic_station(dir.path());
+    let cfg = common::synthetic_station(dir.path(), None);
     let out = std::process::Command::new(env!("CARGO_BIN_EXE_conformd"))
         .args([
             "capture",
@@ -492,7 +459,7 @@ fn a_frame_from_before_the_trigger_is_never_taken() {
 #[test]
 fn concurrent_captures_into_one_folder_never_share_an_id() {
     let dir = tempfile::tempdir().unwrap();
-    let cfg = synthetic_station(dir.path());
+    let cfg = common::synthetic_station(dir.path(), None);
     let run = |subject: &str| {
         std::process::Command::new(env!("CARGO_BIN_EXE_conformd"))
             .args([

@@ -725,13 +725,42 @@ fn a_girth_from_its_group_leaves_an_arm_against_the_chest_out() {
     }
 }
 
+/// The 3000-vertex generic body and the same posed by `degrees` per joint group.
+fn posed_body(degrees: &[(&str, f64)]) -> (template::figure::Figure, Mesh) {
+    let fig = template::build(Kind::Body, 3000);
+    let pose = template::pose(
+        Kind::Body,
+        &degrees.iter().map(|(k, v)| (k.to_string(), *v)).collect(),
+    );
+    let posed = template::subject(&fig, Kind::Body, &BTreeMap::new(), &pose).unwrap();
+    (fig, posed)
+}
+
+/// Definitions `text` on the body `fig`: their values on it at rest, on `posed` as
+/// measured, and on `posed` posture-free (the station's removal: the body's parts).
+fn rest_raw_free(
+    fig: &template::figure::Figure,
+    posed: &Mesh,
+    text: &str,
+) -> [Vec<Measurement>; 3] {
+    let r = Definitions::parse(text, "d")
+        .unwrap()
+        .resolve(&fig.mesh, &fig.landmarks())
+        .unwrap();
+    let removal = conformd::measure::PostureRemoval::for_figure(fig, Kind::Body, &r);
+    [
+        r.measure(&fig.mesh).unwrap(),
+        r.measure(posed).unwrap(),
+        removal.measure(&r, "posed", posed).unwrap(),
+    ]
+}
+
 /// `posture_free = "as_measured"`: the posture-free value of such a measurement is the
 /// raw one; the same definition without it is moved by the parts (and differs on a posed
 /// subject).
 #[test]
 fn a_measurement_marked_as_measured_keeps_its_raw_value_posture_free() {
-    let fig = template::build(Kind::Body, 3000);
-    let lms = fig.landmarks();
+    let (fig, posed) = posed_body(&[("nod", 25.0), ("hip_l", -30.0), ("knee_l", 40.0)]);
     let text = |how: &str| {
         format!(
             "[[measurement]]\nname = \"crotch\"\nkind = \"height\"\npoint = [0.0, 0.0, 0.80]\n{how}\n\
@@ -739,26 +768,8 @@ fn a_measurement_marked_as_measured_keeps_its_raw_value_posture_free() {
              axis = [[\"shoulder_top_l\", \"shoulder_top_r\"], \"head_top\"]\n{how}\n"
         )
     };
-    let posed = template::subject(
-        &fig,
-        Kind::Body,
-        &BTreeMap::new(),
-        &template::pose(
-            Kind::Body,
-            &[("nod", 25.0), ("hip_l", -30.0), ("knee_l", 40.0)]
-                .map(|(k, v)| (k.to_string(), v))
-                .into(),
-        ),
-    )
-    .unwrap();
     let measure = |how: &str| {
-        let r = Definitions::parse(&text(how), "d")
-            .unwrap()
-            .resolve(&fig.mesh, &lms)
-            .unwrap();
-        let removal = conformd::measure::PostureRemoval::for_figure(&fig, Kind::Body, &r);
-        let raw = r.measure(&posed).unwrap();
-        let free = removal.measure(&r, "posed", &posed).unwrap();
+        let [_, raw, free] = rest_raw_free(&fig, &posed, &text(how));
         (raw, free)
     };
     let (raw, free) = measure("posture_free = \"as_measured\"");
@@ -781,8 +792,7 @@ fn a_measurement_marked_as_measured_keeps_its_raw_value_posture_free() {
 /// where the same girth as measured or moved by the parts does not.
 #[test]
 fn a_measurement_marked_skeleton_is_measured_with_the_skeleton_undone() {
-    let fig = template::build(Kind::Body, 3000);
-    let lms = fig.landmarks();
+    let (fig, posed) = posed_body(&[("nod", 30.0), ("head_turn", 25.0), ("bend", 15.0)]);
     let text = |how: &str| {
         format!(
             "[[measurement]]\nname = \"neck\"\nkind = \"girth\"\nat = [0.0, 0.0, 1.555]\n\
@@ -791,27 +801,10 @@ fn a_measurement_marked_skeleton_is_measured_with_the_skeleton_undone() {
              axis = [[\"hip_l\", \"hip_r\"], [\"shoulder_top_l\", \"shoulder_top_r\"]]\n"
         )
     };
-    let pose = template::pose(
-        Kind::Body,
-        &[("nod", 30.0), ("head_turn", 25.0), ("bend", 15.0)]
-            .map(|(k, v)| (k.to_string(), v))
-            .into(),
-    );
-    let posed = template::subject(&fig, Kind::Body, &BTreeMap::new(), &pose).unwrap();
-    let measure = |how: &str| {
-        let r = Definitions::parse(&text(how), "d")
-            .unwrap()
-            .resolve(&fig.mesh, &lms)
-            .unwrap();
-        let removal = conformd::measure::PostureRemoval::for_figure(&fig, Kind::Body, &r);
-        let rest = r.measure(&fig.mesh).unwrap();
-        let raw = r.measure(&posed).unwrap();
-        let free = removal.measure(&r, "posed", &posed).unwrap();
-        (rest, raw, free)
-    };
-    let (rest, raw, by_skeleton) = measure("posture_free = \"skeleton\"");
-    let (_, _, by_parts) = measure("");
-    let (_, _, as_measured) = measure("posture_free = \"as_measured\"");
+    let measure = |how: &str| rest_raw_free(&fig, &posed, &text(how));
+    let [rest, raw, by_skeleton] = measure("posture_free = \"skeleton\"");
+    let [_, _, by_parts] = measure("");
+    let [_, _, as_measured] = measure("posture_free = \"as_measured\"");
     let off = |ms: &[Measurement], name: &str| {
         (value(ms, name) - value(&rest, name)).abs() / value(&rest, name)
     };

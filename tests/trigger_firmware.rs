@@ -390,42 +390,7 @@ fn conformd_capture_fires_through_the_emulated_box() {
     let dir = tempfile::tempdir().unwrap();
     let dev = dir.path().join("ttyACM-box");
     let emu = Emulator::start(&dev);
-    let cfg = dir.path().join("station.toml");
-    std::fs::write(
-        &cfg,
-        format!(
-            r#"
-[capture]
-root = "captures"
-station = "crate-1"
-window_ms = 500
-[capture.camera_settings]
-format = "GREY"
-width = 32
-height = 24
-external_trigger = true
-
-[trigger]
-device = "{}"
-baud = 115200
-reply_timeout_ms = 500
-
-[[cameras]]
-id = "pod1-left"
-pod = "pod1"
-side = "left"
-synthetic = true
-
-[[cameras]]
-id = "pod1-right"
-pod = "pod1"
-side = "right"
-synthetic = true
-"#,
-            dev.display()
-        ),
-    )
-    .unwrap();
+    let cfg = crate::common::synthetic_station(dir.path(), Some(&dev));
     let out = Command::new(env!("CARGO_BIN_EXE_conformd"))
         .args([
             "capture",

@@ -41,3 +41,51 @@ pub fn free_port() -> u16 {
         .unwrap()
         .port()
 }
+
+/// A station file with two synthetic cameras writing to `captures/` beside it; with
+/// `trigger`, fired through the trigger box at that device (their frames then wait for
+/// its pulse).
+pub fn synthetic_station(
+    dir: &std::path::Path,
+    trigger: Option<&std::path::Path>,
+) -> std::path::PathBuf {
+    let cfg = dir.join("station.toml");
+    let trigger = trigger.map_or(String::new(), |d| {
+        format!(
+            "[trigger]\ndevice = \"{}\"\nbaud = 115200\nreply_timeout_ms = 500\n",
+            d.display()
+        )
+    });
+    std::fs::write(
+        &cfg,
+        format!(
+            r#"
+[capture]
+root = "captures"
+station = "crate-1"
+window_ms = 500
+[capture.camera_settings]
+format = "GREY"
+width = 32
+height = 24
+external_trigger = {}
+
+{trigger}
+[[cameras]]
+id = "pod1-left"
+pod = "pod1"
+side = "left"
+synthetic = true
+
+[[cameras]]
+id = "pod1-right"
+pod = "pod1"
+side = "right"
+synthetic = true
+"#,
+            !trigger.is_empty()
+        ),
+    )
+    .unwrap();
+    cfg
+}
