@@ -152,7 +152,14 @@ fn the_debian_package_installs_its_user_units_and_config_and_purges_without_the_
     assert_eq!(field("Package"), "conformd");
     assert_eq!(field("Version"), format!("{}-1", env!("CARGO_PKG_VERSION")));
     let depends = field("Depends");
-    for lib in ["libc6", "libopencv-core", "libopencv-calib3d", "passwd"] {
+    for lib in [
+        "libc6",
+        "libopencv-core",
+        "libopencv-calib3d",
+        "passwd",
+        "fonts-dejavu-core",
+        "libjs-three",
+    ] {
         assert!(depends.contains(lib), "Depends lacks {lib}: {depends}");
     }
 

@@ -86,7 +86,8 @@ done
 printf '/etc/conformd/station.toml\n/etc/conformd/rig.example.toml\n' > "$root/DEBIAN/conffiles"
 chmod 644 "$root/DEBIAN/conffiles"
 
-# the shared libraries' packages, as dpkg-shlibdeps finds them
+# the shared libraries' packages, as dpkg-shlibdeps finds them; besides them the font the
+# plots' labels are drawn in and the three.js the capture page's 3D view is served from
 mkdir -p "$work/src/debian"
 printf 'Source: conformd\n\nPackage: conformd\nArchitecture: any\n' > "$work/src/debian/control"
 shlibs=$(cd "$work/src" && dpkg-shlibdeps -O -e "$root/usr/bin/conformd" 2>/dev/null |
@@ -99,7 +100,7 @@ Version: $version-$revision
 Architecture: $arch
 Maintainer: $maintainer
 Installed-Size: $size
-Depends: $shlibs, passwd
+Depends: $shlibs, passwd, fonts-dejavu-core, libjs-three
 Section: science
 Priority: optional
 Description: photogrammetry capture-station daemon with template mesh conformation
