@@ -238,24 +238,34 @@ fn three_workers_60_jobs_one_killed_mid_job_every_job_done_exactly_once() {
         .map(|l| spawn(&["worker", "--config", &cfg_s], l))
         .collect();
     let victim = workers[1].id();
-    // kill it while it holds a job, a few jobs in
+    // kill it while it holds a job, a few jobs in: stopped first, then the job it holds
+    // read, so it cannot finish that job between the look and the kill (a job takes
+    // 0.2 s here); if it held none once stopped, it goes on and is looked at again
     let mut held = String::new();
-    wait_until("the victim mid-job", 60.0, || {
-        let done = j.counts().unwrap().done;
-        let mine = j
-            .list(Some(State::Running), 100)
+    let victims_job = |j: &mut journal::Journal| {
+        j.list(Some(State::Running), 100)
             .unwrap()
             .into_iter()
             .find(|r| {
                 r.worker
                     .as_deref()
                     .is_some_and(|w| w.ends_with(&format!(":{victim}")))
-            });
-        if let (true, Some(job)) = (done >= 10, mine) {
-            held = job.id;
-            true
-        } else {
-            false
+            })
+    };
+    wait_until("the victim stopped mid-job", 60.0, || {
+        if j.counts().unwrap().done < 10 || victims_job(&mut j).is_none() {
+            return false;
+        }
+        signal(victim, "-STOP");
+        match victims_job(&mut j) {
+            Some(job) => {
+                held = job.id;
+                true
+            }
+            None => {
+                signal(victim, "-CONT");
+                false
+            }
         }
     });
     signal(victim, "-KILL");
