@@ -561,22 +561,23 @@ impl Resolved {
     /// Every measurement on `mesh` with the lines it was taken along, for a viewer to
     /// draw where it was taken.
     pub fn measure_drawn(&self, mesh: &Mesh) -> Result<Vec<Drawn>, MeasureError> {
-        self.measure_in(mesh, None)
+        self.measure_in(mesh, None, None)
     }
 
     /// Every measurement on `mesh` with each definition moved into the posture `posed`
     /// (fitted to this mesh): sections cut where the parts carry their planes, lengths
     /// and heights with the joints' rotations taken out; areas, volumes and surface
     /// paths as they are (a posture does not change them). A measurement marked
-    /// `as_measured` or `skeleton` is as measured here (see [`PostureRemoval::measure`]
-    /// for the skeleton's).
+    /// `as_measured` is as measured; one marked `skeleton` is taken on `straight` (the
+    /// mesh with the template's skeleton undone), as measured when there is none.
     pub fn measure_posed(
         &self,
         mesh: &Mesh,
         posed: &posture::Posed,
+        straight: Option<&Mesh>,
     ) -> Result<Vec<Measurement>, MeasureError> {
         Ok(self
-            .measure_in(mesh, Some(posed))?
+            .measure_in(mesh, Some(posed), straight)?
             .into_iter()
             .map(|d| d.measurement)
             .collect())
@@ -586,21 +587,28 @@ impl Resolved {
         &self,
         mesh: &Mesh,
         posed: Option<&posture::Posed>,
+        straight: Option<&Mesh>,
     ) -> Result<Vec<Drawn>, MeasureError> {
-        if mesh.vertices.len() != self.vertices {
-            return Err(MeasureError::VertexCount {
-                got: mesh.vertices.len(),
-                expected: self.vertices,
-            });
+        for m in std::iter::once(mesh).chain(straight) {
+            if m.vertices.len() != self.vertices {
+                return Err(MeasureError::VertexCount {
+                    got: m.vertices.len(),
+                    expected: self.vertices,
+                });
+            }
         }
-        let v = &mesh.vertices;
         let mean = |f: &Fixed, at: &dyn Fn(u32) -> V3| {
             f.iter().map(|&i| at(i)).sum::<V3>() / f.len() as f64
         };
-        let place = |f: &Fixed| mean(f, &|i| v[i as usize]);
         let mut out = Vec::with_capacity(self.items.len());
         for (name, kind, r, how) in &self.items {
-            let posed = posed.filter(|_| *how == PostureFree::Parts);
+            // each measurement on the mesh and with the posture its route takes
+            let (mesh, posed) = match how {
+                PostureFree::Parts => (mesh, posed),
+                PostureFree::AsMeasured => (mesh, None),
+                PostureFree::Skeleton => (straight.unwrap_or(mesh), None),
+            };
+            let place = |f: &Fixed| mean(f, &|i| mesh.vertices[i as usize]);
             // lengths and heights: with a posture, the joints' rotations taken out
             let length_place = |f: &Fixed| match posed {
                 Some(p) => mean(f, &|i| p.normalised(i)),
@@ -955,18 +963,13 @@ impl PostureRemoval {
                 kind,
             } => {
                 let posed = parts.fit(m)?;
-                let mut out = resolved.measure_posed(m, &posed)?;
-                let routes = resolved.routes();
-                if routes.contains(&PostureFree::Skeleton) {
-                    let (straight, _) = crate::template::remove_posture(figure, *kind, m)?;
-                    let on_straight = resolved.measure(&straight)?;
-                    for ((o, s), how) in out.iter_mut().zip(on_straight).zip(routes) {
-                        if how == PostureFree::Skeleton {
-                            *o = s;
-                        }
-                    }
-                }
-                Ok(out)
+                // the skeleton is fitted only when a measurement asks for it
+                let straight = if resolved.routes().contains(&PostureFree::Skeleton) {
+                    Some(crate::template::remove_posture(figure, *kind, m)?.0)
+                } else {
+                    None
+                };
+                resolved.measure_posed(m, &posed, straight.as_ref())
             }
             _ => resolved.measure(&self.apply(name, m)?),
         }
