@@ -1523,8 +1523,10 @@ fn landmarks_placed_on_the_page_refit_the_capture_by_them() {
     }
     assert!(!d.join("data/landmarks/lm-1.txt").exists());
 
-    // placed through the page's own calls: one by a click on the scan in the view, then
-    // every landmark where it belongs, sent with the page's button call
+    // placed as an operator does: a name's button clicked, a click on the scan (the point
+    // under the pointer placed), a drag on the view (it turns the view and places
+    // nothing); then every landmark where it belongs through the page's own call (most
+    // true places are hidden from any one view), the token typed and the button clicked
     let browser = Browser::start(&d.join("chrome-lm"), 1400, 1000);
     browser.go(&daemon.url("/captures/lm-1"));
     browser.wait_for(
@@ -1536,39 +1538,47 @@ fn landmarks_placed_on_the_page_refit_the_capture_by_them() {
         "return window.conformdViewer.landmarkNames;",
         serde_json::json!([]),
     );
-    assert_eq!(
-        names.as_array().unwrap().len(),
-        automatic.landmarks.len(),
-        "{names}"
-    );
-    let clicked = browser.run(
-        "const v = window.conformdViewer; v.select(arguments[0]);\
-         const c = document.querySelector('#viewer canvas').getBoundingClientRect();\
-         return v.clickAt(c.left + c.width / 2, c.top + c.height / 2);",
-        serde_json::json!([placed[0]["name"]]),
-    );
-    let hit = at(&serde_json::json!({ "position": clicked }));
+    let names: Vec<String> = serde_json::from_value(names).unwrap();
+    assert_eq!(names.len(), automatic.landmarks.len(), "{names:?}");
+    // the page selects the first name itself: the button of the last one must be clicked
+    let picked = names.last().unwrap().clone();
+    browser.click(&format!("#landmark-list li[data-name=\"{picked}\"] button"));
+    let placed_now = || {
+        browser.run(
+            "return window.conformdViewer.placed();",
+            serde_json::json!([]),
+        )
+    };
+    browser.press_and_release("#viewer canvas", (0, 0), (0, 0));
+    let clicked = placed_now();
+    assert_eq!(clicked[0]["name"], picked.as_str(), "{clicked}");
+    let hit = at(&clicked[0]);
     assert!(
         scan.vertices.iter().any(|v| (v - hit).norm() < 1e-6),
         "a click places a scan point: {clicked}"
     );
     let listed = browser.run(
         "return document.querySelector(`#landmark-list li[data-name=\"${arguments[0]}\"]`).textContent;",
-        serde_json::json!([placed[0]["name"]]),
+        serde_json::json!([picked]),
     );
     assert!(listed.as_str().unwrap().contains("placed at"), "{listed}");
+    // a drag turns the view: nothing more is placed, nothing moves
+    browser.press_and_release("#viewer canvas", (-80, 10), (80, -10));
+    assert_eq!(placed_now(), clicked, "a drag places nothing");
+    // the clicked point replaced by the true places (its name may not be among them)
     let n = browser.run(
-        "const v = window.conformdViewer; for (const l of arguments[0]) v.place(l.name, l.position);\
-         return v.placed().length;",
-        serde_json::json!([placed]),
+        "const v = window.conformdViewer; v.unplace(arguments[1]);\
+         for (const l of arguments[0]) v.place(l.name, l.position); return v.placed().length;",
+        serde_json::json!([placed, picked]),
     );
     assert_eq!(n, placed.len());
-    let sent = browser.run_async(
-        "window.conformdViewer.submitLandmarks(arguments[0]).then(arguments[1]);",
-        serde_json::json!([token]),
+    browser.type_into("#landmarks-token", token);
+    browser.click("#landmarks-submit");
+    browser.wait_for(
+        "return document.getElementById('landmarks-said').textContent.startsWith('queued');",
+        "the page to say the landmarks were sent",
+        Duration::from_secs(30),
     );
-    assert_eq!(sent["status"], 202, "{sent}");
-    drop(browser);
 
     // fitted again by them: the journal, the report and the page say so, and each
     // template landmark now sits where it was placed
@@ -1603,6 +1613,35 @@ fn landmarks_placed_on_the_page_refit_the_capture_by_them() {
     );
     assert!(after < 0.005, "{:.3}% of the diagonal", 100.0 * after);
     assert!(after < before / 4.0, "{before} -> {after}");
+
+    // the review form as an operator uses it: a rejection without its reason refused on
+    // the page, then given with the reason and the token typed
+    browser.go(&daemon.url("/captures/lm-1"));
+    browser.type_into("#review input[name=token]", token);
+    browser.click("#review button[data-verdict=rejected]");
+    browser.wait_for(
+        "return document.getElementById('review-said').textContent.includes('reason');",
+        "the page to refuse a rejection without its reason",
+        Duration::from_secs(30),
+    );
+    browser.type_into(
+        "#review input[name=reason]",
+        "left hind hoof on the floor mat",
+    );
+    browser.click("#review button[data-verdict=rejected]");
+    browser.wait_for(
+        "const v = document.getElementById('verdict'); return !!v && v.textContent === 'rejected';",
+        "the page to show the verdict",
+        Duration::from_secs(30),
+    );
+    let (_, detail) = daemon.get("/api/captures/lm-1");
+    let detail: serde_json::Value = serde_json::from_str(&detail).unwrap();
+    assert_eq!(detail["review"]["verdict"], "rejected", "{detail}");
+    assert_eq!(
+        detail["review"]["reason"], "left hind hoof on the floor mat",
+        "{detail}"
+    );
+    drop(browser);
     assert!(
         !set.join("landmarks.txt").exists(),
         "the capture set is not touched"

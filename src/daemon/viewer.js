@@ -320,7 +320,12 @@
       const rect = renderer.domElement.getBoundingClientRect();
       const ndc = new THREE.Vector2(((x - rect.left) / rect.width) * 2 - 1, -((y - rect.top) / rect.height) * 2 + 1);
       ray.setFromCamera(ndc, camera);
+      // while the pointer is down the view shows the thinned cloud and hides this one,
+      // and three.js skips hidden objects: a click's own press hid it
+      const shown = points.visible;
+      points.visible = true;
       const hit = ray.intersectObject(points)[0];
+      points.visible = shown;
       if (!hit) return null;
       const a = points.geometry.attributes.position;
       return [a.getX(hit.index), a.getY(hit.index), a.getZ(hit.index)];

@@ -9,6 +9,9 @@ use std::path::Path;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
+/// The key of an element reference in WebDriver's JSON (the W3C standard's constant).
+const ELEMENT: &str = "element-6066-11e4-a52e-4f735466cecf";
+
 pub struct Browser {
     driver: Child,
     url: String,
@@ -110,6 +113,61 @@ impl Browser {
             &format!("session/{}/execute/async", self.session),
             serde_json::json!({ "script": script, "args": args }),
         )
+    }
+
+    /// The first element `css` selects (fails when there is none).
+    fn element(&self, css: &str) -> String {
+        let v = self.call(
+            &format!("session/{}/element", self.session),
+            serde_json::json!({ "using": "css selector", "value": css }),
+        );
+        v[ELEMENT]
+            .as_str()
+            .unwrap_or_else(|| panic!("no element '{css}': {v}"))
+            .to_string()
+    }
+
+    /// Clicks the element `css` selects, as a person would (WebDriver's element click:
+    /// scrolled into view, the pointer at its centre).
+    pub fn click(&self, css: &str) {
+        let e = self.element(css);
+        self.call(
+            &format!("session/{}/element/{e}/click", self.session),
+            serde_json::json!({}),
+        );
+    }
+
+    /// Types `text` into the element `css` selects, key by key.
+    pub fn type_into(&self, css: &str, text: &str) {
+        let e = self.element(css);
+        self.call(
+            &format!("session/{}/element/{e}/value", self.session),
+            serde_json::json!({ "text": text }),
+        );
+    }
+
+    /// The left mouse button pressed at `from` and let go at `to`, moving in between;
+    /// points in pixels from the centre of the element `css` selects. The same point
+    /// twice is a click.
+    pub fn press_and_release(&self, css: &str, from: (i64, i64), to: (i64, i64)) {
+        let e = self.element(css);
+        let origin = serde_json::json!({ ELEMENT: e });
+        // at once, so that the element does not move under the pointer (a smooth
+        // scroll still running from an earlier click did)
+        self.run(
+            "arguments[0].scrollIntoView({ block: 'center', behavior: 'instant' });",
+            serde_json::json!([origin]),
+        );
+        let actions = serde_json::json!({ "actions": [{
+            "type": "pointer", "id": "mouse", "parameters": { "pointerType": "mouse" },
+            "actions": [
+                { "type": "pointerMove", "duration": 0, "origin": origin, "x": from.0, "y": from.1 },
+                { "type": "pointerDown", "button": 0 },
+                { "type": "pointerMove", "duration": 200, "origin": origin, "x": to.0, "y": to.1 },
+                { "type": "pointerUp", "button": 0 },
+            ],
+        }]});
+        self.call(&format!("session/{}/actions", self.session), actions);
     }
 
     /// Waits (up to `limit`) until `script` returns true.
