@@ -159,6 +159,7 @@ fn main() {
                 turns.join(", ")
             );
         }
+        print_fold_repair(&r.report);
         let own = quality::folded_triangles(&case.template);
         if r.report.folded_triangles > 0 || own > 0 {
             println!(
@@ -347,6 +348,7 @@ fn generic(opts: &ConformOptions, only: &[&str], pictures: Option<&std::path::Pa
             part_label(c.part)
         );
         print_marks(&s);
+        print_fold_repair(&r.report);
         if let conformd::conform::GlobalReport::Automatic(a) = &r.report.global {
             eprintln!(
                 "  alignment: {} candidates, residual {:.4} (runner-up {:?}), {} fitted, kept {}; limbs turned {:?}",
@@ -363,4 +365,14 @@ fn generic(opts: &ConformOptions, only: &[&str], pictures: Option<&std::path::Pa
         "generic: mean over {n} cases {:.3}%",
         sum / n.max(1) as f64 * 100.0
     );
+}
+
+/// What the fold repair after the elastic fit did, when it found anything.
+fn print_fold_repair(report: &conformd::conform::ConformReport) {
+    if let Some(f) = report.fold_repair.filter(|f| f.found > 0) {
+        eprintln!(
+            "  fold repair: {} turned over, {} vertices moved, {} left",
+            f.found, f.moved, f.left
+        );
+    }
 }

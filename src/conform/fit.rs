@@ -441,6 +441,165 @@ impl<'a> Fit<'a> {
     }
 }
 
+/// What the fold repair after the elastic fit found and left.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
+pub struct FoldRepair {
+    /// triangles turned over against the rest shape under the fitted rotations
+    pub found: usize,
+    /// vertices moved by the repair
+    pub moved: usize,
+    /// triangles still turned over after it
+    pub left: usize,
+}
+
+/// Rings of neighbours around a fold that the repair frees besides the fold's own
+/// vertices, per round; a fold still there after a round is freed wider.
+const FOLD_RINGS: [usize; 3] = [2, 4, 8];
+
+impl Fit<'_> {
+    /// Triangles whose normal points away from their rest normal turned by their
+    /// vertices' fitted rotations: a patch the data pulled inside out, typically a part
+    /// finer than the scan resolves (fingers, ears), where the data carries no shape.
+    fn turned_over(&self, x: &[V3]) -> Vec<usize> {
+        let r: Vec<Matrix3<f64>> = self
+            .rot
+            .iter()
+            .map(|q| *q.to_rotation_matrix().matrix())
+            .collect();
+        let normal = |p: &[V3], t: &[u32; 3]| {
+            let [a, b, c] = t.map(|i| p[i as usize]);
+            (b - a).cross(&(c - a))
+        };
+        (0..self.tris.len())
+            .into_par_iter()
+            .with_min_len(4096)
+            .filter(|&k| {
+                let t = &self.tris[k];
+                let turn = t.iter().map(|&i| r[i as usize]).sum::<Matrix3<f64>>();
+                normal(x, t).dot(&(turn * normal(&self.rest, t))) <= 0.0
+            })
+            .collect()
+    }
+
+    /// Gives turned-over patches back their rest shape: the vertices of every such
+    /// triangle and a few rings round them are solved as-rigid-as-possible with no data,
+    /// held by the rest of the fit as it stands (their first rotations taken from the
+    /// nearest vertex outside, since a fold's own are meaningless). Where one round
+    /// leaves folds, the next frees wider rings. The data term put the fold there, so
+    /// the scan loses nothing it resolves.
+    pub fn repair_folds(&mut self, x: &mut [V3]) -> FoldRepair {
+        solve::fit_rotations(&self.lap, &self.rest, x, &self.support, &mut self.rot, None);
+        let mut folds = self.turned_over(x);
+        let mut repair = FoldRepair {
+            found: folds.len(),
+            ..FoldRepair::default()
+        };
+        let n = x.len();
+        let mut ever_free = vec![false; n];
+        for rings in FOLD_RINGS {
+            if folds.is_empty() {
+                break;
+            }
+            let mut seeds: Vec<u32> = folds.iter().flat_map(|&k| self.tris[k]).collect();
+            seeds.sort_unstable();
+            seeds.dedup();
+            let free = topology::rings_around(&self.neighbours, &seeds, rings);
+            let (rot_before, scale_before) = (self.rot.clone(), self.local_scale.clone());
+            // first rotations of the freed vertices: the nearest held vertex's
+            let from = topology::nearest_outside(&self.neighbours, &free);
+            for (i, j) in from.iter().enumerate() {
+                if let Some(j) = *j {
+                    self.rot[i] = self.rot[j as usize];
+                    self.local_scale[i] = self.local_scale[j as usize];
+                }
+            }
+            // the freed vertices' springs alone, the held ones as they stand
+            let (sub, index) = self.lap.restricted(&free);
+            let mut xf: Vec<V3> = index.iter().map(|&i| x[i as usize]).collect();
+            let mut xc = x.to_vec();
+            let zeros = vec![0.0; index.len()];
+            for round in 0..4 {
+                if round > 0 {
+                    let kept = self.rot.clone();
+                    solve::fit_rotations(
+                        &self.lap,
+                        &self.rest,
+                        &xc,
+                        &self.support,
+                        &mut self.rot,
+                        None,
+                    );
+                    for i in 0..n {
+                        if !free[i] {
+                            self.rot[i] = kept[i];
+                        }
+                    }
+                }
+                // a relaxed fit's springs keep the scale they had taken
+                let rm: Vec<Matrix3<f64>> = self
+                    .rot
+                    .iter()
+                    .zip(&self.local_scale)
+                    .map(|(q, &sc)| q.to_rotation_matrix().matrix() * sc)
+                    .collect();
+                let springs = self.lap.rotated_rest(&self.rest, Some(&rm));
+                let b: Vec<V3> = index
+                    .iter()
+                    .map(|&i| springs[i as usize] + self.lap.held_pull(i as usize, &free, &xc))
+                    .collect();
+                solve::pcg(&sub, 1.0, &zeros, &b, &mut xf, 1e-8, 1000);
+                for (&i, p) in index.iter().zip(&xf) {
+                    xc[i as usize] = *p;
+                }
+            }
+            // a part is kept repaired when it has fewer triangles turned over than before
+            // and moved no farther than the data reaches (farther, it was folded by a
+            // wrong fit, not by missing detail, and stays as the data left it)
+            let parts = topology::parts_of(&self.neighbours, &free);
+            let mut part_of = vec![usize::MAX; n];
+            for (p, part) in parts.iter().enumerate() {
+                for &i in part {
+                    part_of[i as usize] = p;
+                }
+            }
+            let count = |tris: &[usize]| {
+                let mut c = vec![0usize; parts.len()];
+                for &k in tris {
+                    // a triangle turned over outside the freed parts counts nowhere
+                    if let Some(&p) = self.tris[k]
+                        .iter()
+                        .map(|&i| &part_of[i as usize])
+                        .find(|&&p| p != usize::MAX)
+                    {
+                        c[p] += 1;
+                    }
+                }
+                c
+            };
+            let (before, after) = (count(&folds), count(&self.turned_over(&xc)));
+            for (p, part) in parts.iter().enumerate() {
+                let far = part
+                    .iter()
+                    .any(|&i| (xc[i as usize] - x[i as usize]).norm() > self.limits.max_distance);
+                for &i in part {
+                    let i = i as usize;
+                    if !far && after[p] < before[p] {
+                        x[i] = xc[i];
+                        ever_free[i] = true;
+                    } else {
+                        self.rot[i] = rot_before[i];
+                        self.local_scale[i] = scale_before[i];
+                    }
+                }
+            }
+            folds = self.turned_over(x);
+        }
+        repair.moved = ever_free.iter().filter(|&&f| f).count();
+        repair.left = folds.len();
+        repair
+    }
+}
+
 /// Each vertex's share of the surface (a third of its triangles' areas) against the
 /// mean share, clamped to 1/20..20 so that a degenerate corner keeps some data and a
 /// huge triangle does not drown its neighbours.
@@ -592,5 +751,103 @@ impl Anderson {
             }
             *o = V3::new(v[0], v[1], v[2]);
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mesh::quality::flipped_against;
+
+    /// A unit sphere as a template, turned and moved as a whole: its fit, the truth, and
+    /// the turn and shift applied to a changed copy of its vertices.
+    fn turned_sphere(change: impl Fn(usize, &V3) -> V3) -> (Mesh, Vec<V3>, Vec<V3>) {
+        let sphere = crate::synth::icosphere(4);
+        let turn = UnitQuaternion::from_euler_angles(0.3, -0.2, 0.5);
+        let shift = V3::new(0.2, -0.1, 0.4);
+        let truth = sphere.vertices.iter().map(|p| turn * p + shift).collect();
+        let x = sphere
+            .vertices
+            .iter()
+            .enumerate()
+            .map(|(i, p)| turn * change(i, p) + shift)
+            .collect();
+        (sphere, truth, x)
+    }
+
+    fn largest_gap(a: &[V3], b: &[V3]) -> f64 {
+        a.iter()
+            .zip(b)
+            .map(|(p, q)| (p - q).norm())
+            .fold(0.0, f64::max)
+    }
+
+    /// A vertex pulled across its neighbours (its fan turned inside out, as the data
+    /// leaves a part finer than the scan resolves): the repair gives the patch its shape
+    /// back under the sphere's turn and leaves the rest where it was; run again, it
+    /// finds nothing.
+    #[test]
+    fn a_fold_within_the_data_s_reach_gets_its_rest_shape_back() {
+        // the icosphere's first vertex, (-1, t, 0) normalised: z is along its surface
+        let pulled = 0;
+        let (sphere, truth, mut x) = turned_sphere(|i, p| {
+            if i == pulled {
+                // across the ring (edges about 0.08 long), within the match distance
+                p + V3::new(0.0, 0.0, 0.1)
+            } else {
+                *p
+            }
+        });
+        let opts = ConformOptions::default();
+        let mut fit = Fit::new(
+            &sphere,
+            &sphere.vertices,
+            &Similarity::default(),
+            None,
+            &opts,
+        );
+        let before = flipped_against(&x, &truth, &sphere.triangles);
+        assert!(before >= 2, "{before} triangles turned over to start with");
+        let moved_before = largest_gap(&x, &truth);
+
+        let r = fit.repair_folds(&mut x);
+        assert_eq!(flipped_against(&x, &truth, &sphere.triangles), 0, "{r:?}");
+        assert!(r.found > 0 && r.left == 0 && r.moved > 0, "{r:?}");
+        let far = (0..x.len())
+            .filter(|&i| (sphere.vertices[i] - sphere.vertices[pulled]).norm() > 0.5)
+            .map(|i| (x[i] - truth[i]).norm())
+            .fold(0.0, f64::max);
+        assert!(far < 1e-12, "far from the fold a vertex moved {far}");
+        let after = largest_gap(&x, &truth);
+        assert!(after < moved_before / 10.0, "{moved_before} -> {after}");
+        let again = fit.repair_folds(&mut x);
+        assert_eq!((again.found, again.moved), (0, 0), "{again:?}");
+    }
+
+    /// A cap mirrored (turned inside out a long way, as a wrong fit does): giving it its
+    /// shape back would carry it farther than the data reaches, so it stays as it is.
+    #[test]
+    fn a_fold_beyond_the_data_s_reach_is_left_as_the_fit_left_it() {
+        let (sphere, truth, mut x) = turned_sphere(|_, p| {
+            if p.z > 0.8 {
+                V3::new(-p.x, p.y, p.z)
+            } else {
+                *p
+            }
+        });
+        let opts = ConformOptions::default();
+        let mut fit = Fit::new(
+            &sphere,
+            &sphere.vertices,
+            &Similarity::default(),
+            None,
+            &opts,
+        );
+        let before = flipped_against(&x, &truth, &sphere.triangles);
+        assert!(before >= 20, "{before} triangles turned over to start with");
+        let as_left = x.clone();
+        let r = fit.repair_folds(&mut x);
+        assert!(r.found > 0 && r.moved == 0 && r.left == r.found, "{r:?}");
+        assert_eq!(x, as_left);
     }
 }

@@ -28,6 +28,7 @@ use crate::mesh::transform::fit_similarity;
 use crate::mesh::{Mesh, V3, topology, vertex_normals};
 use crate::template::rig::TemplateRig;
 use correspond::{MatchLimits, ScanSurface};
+pub use fit::FoldRepair;
 use rayon::prelude::*;
 use std::collections::BTreeMap;
 use std::time::Instant;
@@ -174,6 +175,9 @@ pub struct ConformOptions {
     /// relative residual at which a linear solve stops
     pub solver_tolerance: f64,
     pub solver_max_iterations: usize,
+    /// after the elastic fit, give triangles the data turned inside out their rest shape
+    /// back (default method; see `FoldRepair`)
+    pub repair_folds: bool,
     pub align: align::AlignOptions,
 }
 
@@ -213,6 +217,7 @@ impl Default for ConformOptions {
             scan_to_template: 6.0,
             solver_tolerance: 1e-4,
             solver_max_iterations: 300,
+            repair_folds: true,
             align: align::AlignOptions::default(),
         }
     }
@@ -462,6 +467,7 @@ pub struct StageTimes {
     pub fill: f64,
     pub rotations: f64,
     pub solve: f64,
+    pub fold_repair: f64,
     pub total: f64,
 }
 
@@ -490,6 +496,8 @@ pub struct ConformReport {
     /// figures of the result: against the original template
     pub final_variation: Variation,
     pub folded_triangles: usize,
+    /// what the fold repair found and left (absent when it did not run)
+    pub fold_repair: Option<FoldRepair>,
     pub matched: usize,
     pub filled: usize,
     pub mean_distance: f64,
@@ -1051,13 +1059,19 @@ fn finish(
     let (template, surface, opts) = (elastic.template, elastic.surface, elastic.opts);
     let n = template.vertices.len();
     let FittedHypothesis {
-        x,
-        fit,
+        mut x,
+        mut fit,
         mut reports,
         converged,
         ..
     } = best;
     let diag = fit.diag;
+    let fold_repair = (opts.repair_folds && opts.method == Method::Default).then(|| {
+        let t = Instant::now();
+        let r = fit.repair_folds(&mut x);
+        times.fold_repair = t.elapsed().as_secs_f64();
+        r
+    });
 
     // The distance of the final result to the scan.
     let t = Instant::now();
@@ -1104,6 +1118,7 @@ fn finish(
         distortion_warning: distortion_warning(&final_variation),
         placement_warning: placement,
         folded_triangles: quality::folded_triangles(&mesh),
+        fold_repair,
         matched: fin.matched,
         filled: n - fin.matched,
         mean_distance: fin.mean_distance,

@@ -134,6 +134,50 @@ impl Laplacian {
     }
 }
 
+impl Laplacian {
+    /// The Laplacian over the `free` vertices alone with the others held (Dirichlet):
+    /// the free-free weights, each free vertex's full diagonal. Returns it and the free
+    /// vertices' indices in the whole mesh, in its row order.
+    pub fn restricted(&self, free: &[bool]) -> (Laplacian, Vec<u32>) {
+        let index: Vec<u32> = (0..free.len() as u32)
+            .filter(|&i| free[i as usize])
+            .collect();
+        let mut row = vec![u32::MAX; free.len()];
+        for (k, &i) in index.iter().enumerate() {
+            row[i as usize] = k as u32;
+        }
+        let mut tri = TriMat::new((index.len(), index.len()));
+        for (k, &i) in index.iter().enumerate() {
+            if let Some(r) = self.weights.outer_view(i as usize) {
+                for (j, &w) in r.iter() {
+                    if free[j] {
+                        tri.add_triplet(k, row[j] as usize, w);
+                    }
+                }
+            }
+        }
+        let diag = index.iter().map(|&i| self.diag[i as usize]).collect();
+        (
+            Laplacian {
+                weights: tri.to_csr(),
+                diag,
+            },
+            index,
+        )
+    }
+
+    /// `sum_j c_ij x_j` over vertex `i`'s neighbours that are not `free`: what the held
+    /// vertices add to a free vertex's right-hand side.
+    pub fn held_pull(&self, i: usize, free: &[bool], x: &[V3]) -> V3 {
+        self.weights.outer_view(i).map_or(V3::zeros(), |r| {
+            r.iter()
+                .filter(|(j, _)| !free[*j])
+                .map(|(j, &w)| x[j] * w)
+                .sum()
+        })
+    }
+}
+
 /// Outcome of one linear solve.
 #[derive(Debug, Clone, Copy, Default)]
 pub struct SolveStats {

@@ -21,6 +21,86 @@ pub fn vertex_neighbours(nv: usize, tris: &[[u32; 3]]) -> Vec<Vec<u32>> {
     nb
 }
 
+/// The vertices within `rings` steps of `seeds` along `neighbours`, seeds included.
+pub fn rings_around(neighbours: &[Vec<u32>], seeds: &[u32], rings: usize) -> Vec<bool> {
+    let mut inside = vec![false; neighbours.len()];
+    let mut front: Vec<u32> = seeds.to_vec();
+    for &s in seeds {
+        inside[s as usize] = true;
+    }
+    for _ in 0..rings {
+        let mut next = Vec::new();
+        for &v in &front {
+            for &w in &neighbours[v as usize] {
+                if !inside[w as usize] {
+                    inside[w as usize] = true;
+                    next.push(w);
+                }
+            }
+        }
+        front = next;
+    }
+    inside
+}
+
+/// The connected parts of the vertices marked `inside` (joined along `neighbours`),
+/// each a list of vertex indices.
+pub fn parts_of(neighbours: &[Vec<u32>], inside: &[bool]) -> Vec<Vec<u32>> {
+    let mut seen = vec![false; neighbours.len()];
+    let mut parts = Vec::new();
+    for s in 0..neighbours.len() {
+        if !inside[s] || seen[s] {
+            continue;
+        }
+        seen[s] = true;
+        let mut part = vec![s as u32];
+        let mut k = 0;
+        while k < part.len() {
+            for &w in &neighbours[part[k] as usize] {
+                if inside[w as usize] && !seen[w as usize] {
+                    seen[w as usize] = true;
+                    part.push(w);
+                }
+            }
+            k += 1;
+        }
+        parts.push(part);
+    }
+    parts
+}
+
+/// For each vertex `inside`, the nearest vertex not inside in steps along `neighbours`
+/// (ties to the first reached); `None` for the vertices outside and for an inside part
+/// with nothing outside it.
+pub fn nearest_outside(neighbours: &[Vec<u32>], inside: &[bool]) -> Vec<Option<u32>> {
+    let mut from: Vec<Option<u32>> = vec![None; neighbours.len()];
+    let mut front: Vec<u32> = Vec::new();
+    for (v, nb) in neighbours.iter().enumerate() {
+        if !inside[v] && nb.iter().any(|&w| inside[w as usize]) {
+            front.push(v as u32);
+        }
+    }
+    let mut origin: Vec<Option<u32>> = vec![None; neighbours.len()];
+    for &v in &front {
+        origin[v as usize] = Some(v);
+    }
+    while !front.is_empty() {
+        let mut next = Vec::new();
+        for &v in &front {
+            for &w in &neighbours[v as usize] {
+                let w = w as usize;
+                if inside[w] && from[w].is_none() {
+                    from[w] = origin[v as usize];
+                    origin[w] = origin[v as usize];
+                    next.push(w as u32);
+                }
+            }
+        }
+        front = next;
+    }
+    from
+}
+
 /// Undirected edges `(a < b)` with the number of triangles using each, sorted. (By
 /// sorting, not hashing: several times faster on meshes of 10k-100k vertices, and the
 /// conformation report computes it for every result.)
