@@ -559,17 +559,26 @@ fn the_limb_search_turns_swung_limbs_toward_the_scan() {
 /// measured (2026-12-06, with the bone fields: 3.97, 6.87, 3.37, 2.76, 2.74, 4.60, 1.76,
 /// 1.59), kept at the earlier bound where that is lower (koala both, cow posed: 4.00,
 /// 6.70, 2.65 before the bone fields); far from the aim (1.5%, no limb swapped), and
-/// the README says so. The man's two toes: the posing crossed his legs.
+/// the README says so. A limb end on another limb is a wrong result: the bound is 0
+/// everywhere, and a case known to have one is listed in `KNOWN_ON_ANOTHER_LIMB`.
 const GENERIC_BOUNDS: &[(&str, f64, usize)] = &[
     ("generic pig onto koala, posed", 4.94, 0),
     ("generic pig onto koala, large posture", 8.44, 0),
-    ("generic body onto human, posed", 4.21, 2),
+    ("generic body onto human, posed", 4.21, 0),
     ("generic body onto human, large posture", 3.45, 0),
     ("generic pig onto cow, posed", 3.29, 0),
     ("generic pig onto cow, large posture", 5.75, 0),
     ("generic body onto woman, posed", 2.20, 0),
     ("generic body onto woman, large posture", 1.99, 0),
 ];
+
+/// Generic cases known to end with limb ends on another limb, with why: the per-case test
+/// holds their mean and leaves their limbs to a test of the right outcome that is
+/// expected to fail (`known_failure_*` below), so that a fix shows as that test failing.
+const KNOWN_ON_ANOTHER_LIMB: &[(&str, &str)] = &[(
+    "generic body onto human, posed",
+    "both toes end nearer the other foot's true place (the posing crossed his legs)",
+)];
 
 #[test]
 fn generic_templates_onto_outside_subjects_hold_per_case() {
@@ -597,7 +606,8 @@ fn generic_templates_onto_outside_subjects_hold_per_case() {
                 s.max * 100.0,
                 s.wrong_limb
             );
-            if s.mean * 100.0 > mean || s.wrong_limb.len() > wrong {
+            let known = KNOWN_ON_ANOTHER_LIMB.iter().any(|k| k.0 == c.name);
+            if s.mean * 100.0 > mean || (!known && s.wrong_limb.len() > wrong) {
                 failures.push(format!(
                     "{}: mean {:.3}%, on another limb {:?}",
                     c.name,
@@ -609,6 +619,27 @@ fn generic_templates_onto_outside_subjects_hold_per_case() {
     }
     assert_eq!(seen, GENERIC_BOUNDS.len(), "every bound has its case");
     assert!(failures.is_empty(), "{failures:#?}");
+}
+
+/// The right outcome for the man posed (no limb end on another limb), known to fail:
+/// when a change fixes it, this test fails saying so, and the case leaves
+/// `KNOWN_ON_ANOTHER_LIMB`.
+#[test]
+#[should_panic(expected = "on another limb")]
+fn known_failure_the_man_posed_has_no_limb_end_on_another_limb() {
+    let name = KNOWN_ON_ANOTHER_LIMB[0].0;
+    let c = conformd::synth::semantic::generic_cases(devset::Part::Development, &["human"])
+        .unwrap()
+        .into_iter()
+        .find(|c| c.name == name)
+        .unwrap();
+    let r = c.conform(&c.options(&ConformOptions::default())).unwrap();
+    let s = c.score(&r.mesh.vertices);
+    assert!(
+        s.wrong_limb.is_empty(),
+        "{name}: on another limb {:?}",
+        s.wrong_limb
+    );
 }
 
 /// A generic case fitted: how far the result faces the way the subject faces (cosine,
