@@ -6,6 +6,9 @@
 //! throwaway PostgreSQL cluster, `-- --remote N` also (the daemon runs no job itself) and
 //! has N `conformd worker` processes run the jobs.
 
+#[path = "../tests/common/postgres.rs"]
+mod postgres;
+
 use conformd::daemon::Handle;
 use conformd::station::StationConfig;
 use std::path::{Path, PathBuf};
@@ -67,8 +70,7 @@ fn main() {
         .and_then(|i| args.get(i + 1)?.parse().ok())
         .unwrap_or(0);
     let pg = (remote > 0 || args.iter().any(|a| a == "--postgres")).then(|| {
-        conformd::daemon::journal::cluster::TempPostgres::start()
-            .expect("a PostgreSQL server (make test installs it)")
+        postgres::TempPostgres::start().expect("a PostgreSQL server (make test installs it)")
     });
     let journal = match &pg {
         Some(pg) => format!("[journal]\nurl = \"{}\"\n", pg.database("bench").unwrap()),

@@ -3,7 +3,10 @@
 //! local cluster, `fsync` off as in the tests) and on the SQLite file. Target on
 //! PostgreSQL: >= 500 claims/s. Run: `cargo bench --bench journal`.
 
-use conformd::daemon::journal::{self, Finish, cluster::TempPostgres};
+use conformd::daemon::journal::{self, Finish};
+#[path = "../tests/common/postgres.rs"]
+mod postgres;
+use postgres::TempPostgres;
 use std::path::Path;
 use std::time::Instant;
 

@@ -21,6 +21,8 @@ mod daemon;
 mod devset;
 #[path = "hostile.rs"]
 mod hostile;
+#[path = "journal.rs"]
+mod journal;
 #[path = "layering.rs"]
 mod layering;
 #[path = "measure.rs"]

@@ -7,7 +7,8 @@
 use crate::common;
 use common::free_port;
 
-use conformd::daemon::journal::{self, State, cluster::TempPostgres};
+use crate::common::postgres::TempPostgres;
+use conformd::daemon::journal::{self, State};
 use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};

@@ -2,6 +2,7 @@
 #![allow(dead_code)]
 
 pub mod deadline;
+pub mod postgres;
 
 use conformd::conform::{ConformOptions, Conformed, conform};
 use conformd::synth::cases::Case;

@@ -7,7 +7,6 @@
 //! start-up. Folders are stored relative to the station's data root, which every machine
 //! mounts (perhaps at another place), and handed out resolved against this machine's.
 
-pub mod cluster;
 mod postgres;
 pub use postgres::HANDSHAKE_LIMIT;
 mod sqlite;
@@ -262,9 +261,6 @@ pub fn hostname() -> String {
         .filter(|s| !s.is_empty())
         .unwrap_or_else(|| "localhost".into())
 }
-
-#[cfg(test)]
-mod tests;
 
 /// A `captures` row as a [`Job`], for either client: `$get` is its getter (`get` or
 /// `try_get`), `$int` its integer type, `root` the data root folders are resolved against.

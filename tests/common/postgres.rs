@@ -3,6 +3,9 @@
 //! folder, a free port. Run as root, it runs as the `postgres` user (the server refuses
 //! root). `make test` installs the `postgresql` package when it is missing.
 
+// each includer (the tests, two benches) uses some of it
+#![allow(dead_code)]
+
 use std::path::{Path, PathBuf};
 use std::process::Command;
 

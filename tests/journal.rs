@@ -1,7 +1,9 @@
-//! One suite, both stores: every test runs on an SQLite file and on a throwaway
-//! PostgreSQL cluster (`cluster::TempPostgres`).
+//! The station journal: one suite, both stores; every test runs on an SQLite file and
+//! on a throwaway PostgreSQL cluster (`common::postgres::TempPostgres`).
 
-use super::*;
+use crate::common::postgres as cluster;
+use conformd::daemon::journal::*;
+use std::path::Path;
 use std::sync::OnceLock;
 
 /// One server for the whole test binary, a database per test.
