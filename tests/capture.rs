@@ -283,19 +283,16 @@ fn a_hundred_captures_leave_a_hundred_sets() {
 fn capture_from_a_station_config() {
     let dir = tempfile::tempdir().unwrap();
     let cfg = common::synthetic_station(dir.path(), None);
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_conformd"))
-        .args([
-            "capture",
-            "--config",
-            cfg.to_str().unwrap(),
-            "--subject",
-            "pig-7",
-        ])
-        .output_within(CHILD_LIMIT);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+    let out = common::succeeded(
+        std::process::Command::new(env!("CARGO_BIN_EXE_conformd"))
+            .args([
+                "capture",
+                "--config",
+                cfg.to_str().unwrap(),
+                "--subject",
+                "pig-7",
+            ])
+            .output_within(CHILD_LIMIT),
     );
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(

@@ -2,20 +2,13 @@
 //! report's per-iteration figures, `info`, and the one-line error a bad file gets.
 
 use crate::common;
-use common::{CHILD_LIMIT, Deadline};
+use common::{Deadline, conformd};
 
 use conformd::mesh::io::{PlyEncoding, obj_bytes, ply_bytes};
 use conformd::mesh::landmarks::landmarks_text;
 use conformd::synth::cases;
 use std::path::Path;
 use std::process::Command;
-
-fn conformd(args: &[&str], dir: &Path) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_conformd"))
-        .args(args)
-        .current_dir(dir)
-        .output_within(CHILD_LIMIT)
-}
 
 fn write_case(dir: &Path) -> cases::Case {
     let case = cases::sphere_to_box_with_missing(3);
@@ -34,7 +27,7 @@ fn write_case(dir: &Path) -> cases::Case {
 fn conform_with_landmarks_writes_mesh_and_report() {
     let dir = tempfile::tempdir().unwrap();
     let case = write_case(dir.path());
-    let out = conformd(
+    let out = common::succeeded(conformd(
         &[
             "conform",
             "--template",
@@ -51,12 +44,7 @@ fn conform_with_landmarks_writes_mesh_and_report() {
             "report.json",
         ],
         dir.path(),
-    );
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    ));
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(
         stdout.contains("wrote out.ply") && stdout.contains("wrote report.json"),
@@ -115,7 +103,7 @@ fn conform_with_landmarks_writes_mesh_and_report() {
 fn conform_without_landmarks_and_paper_method() {
     let dir = tempfile::tempdir().unwrap();
     write_case(dir.path());
-    let out = conformd(
+    common::succeeded(conformd(
         &[
             "conform",
             "--template",
@@ -126,14 +114,9 @@ fn conform_without_landmarks_and_paper_method() {
             "auto.obj",
         ],
         dir.path(),
-    );
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    ));
     assert!(dir.path().join("auto.obj").exists());
-    let out = conformd(
+    common::succeeded(conformd(
         &[
             "conform",
             "--method",
@@ -152,12 +135,7 @@ fn conform_without_landmarks_and_paper_method() {
             "paper.json",
         ],
         dir.path(),
-    );
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    ));
     let report = std::fs::read_to_string(dir.path().join("paper.json")).unwrap();
     assert!(report.contains("\"method\": \"paper\""));
 }
@@ -256,7 +234,7 @@ fn config_file_and_info() {
         "[conform]\nmax_iterations = 4\n[conform.align]\ntrim = 0.9\n",
     )
     .unwrap();
-    let out = conformd(
+    common::succeeded(conformd(
         &[
             "conform",
             "--template",
@@ -271,12 +249,7 @@ fn config_file_and_info() {
             "r.json",
         ],
         dir.path(),
-    );
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    ));
     let report: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(dir.path().join("r.json")).unwrap()).unwrap();
     assert!(
@@ -284,12 +257,10 @@ fn config_file_and_info() {
         "the config's iteration limit applies"
     );
 
-    let out = conformd(&["info", "c.ply", "--original", "template.obj"], dir.path());
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let out = common::succeeded(conformd(
+        &["info", "c.ply", "--original", "template.obj"],
+        dir.path(),
+    ));
     let info: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(info["topology"]["watertight"], true);
     assert!(info["variation"]["edge_length"]["std"].as_f64().is_some());
@@ -323,7 +294,7 @@ fn a_user_mesh_or_a_generic_template_named_in_a_config() {
         "[template]\ngeneric = \"pig\"\nvertices = 3000\n[conform]\nmax_iterations = 8\n",
     )
     .unwrap();
-    let out = conformd(
+    common::succeeded(conformd(
         &[
             "conform",
             "--config",
@@ -336,12 +307,7 @@ fn a_user_mesh_or_a_generic_template_named_in_a_config() {
             "c.ply",
         ],
         d,
-    );
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    ));
     let c = conformd::mesh::read_mesh(&d.join("c.ply")).unwrap();
     assert_eq!(
         c.triangles, subject.triangles,
@@ -360,7 +326,7 @@ fn a_user_mesh_or_a_generic_template_named_in_a_config() {
     // a user mesh as the template: one of the samples serves as the generic mesh
     std::fs::write(d.join("groups.txt"), "front 0 1 2 3\n").unwrap();
     std::fs::write(d.join("user.toml"), "[template]\nmesh = \"subject.ply\"\nlandmarks = \"subject.landmarks\"\ngroups = \"groups.txt\"\n[conform]\nmax_iterations = 3\n[conform.stiffness]\nfront = 2.0\n").unwrap();
-    let out = conformd(
+    common::succeeded(conformd(
         &[
             "conform",
             "--config",
@@ -373,12 +339,7 @@ fn a_user_mesh_or_a_generic_template_named_in_a_config() {
             "u.ply",
         ],
         d,
-    );
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    ));
     std::fs::write(d.join("bad.toml"), "[template]\ngeneric = \"cow\"\n").unwrap();
     let out = conformd(
         &[
@@ -414,15 +375,10 @@ fn example_config_documents_the_defaults() {
 fn template_model_modes_and_score() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let out = conformd(
+    common::succeeded(conformd(
         &["template", "pig", "--vertices", "2000", "--out", "pig.obj"],
         d,
-    );
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    ));
     assert!(d.join("pig.landmarks").exists());
     let back = conformd::mesh::read_mesh(&d.join("pig.obj")).unwrap();
     assert!(
@@ -442,7 +398,7 @@ fn template_model_modes_and_score() {
     .enumerate()
     {
         let name = format!("p{i}.ply");
-        let out = conformd(
+        common::succeeded(conformd(
             &[
                 "template",
                 "pig",
@@ -454,12 +410,7 @@ fn template_model_modes_and_score() {
                 &name,
             ],
             d,
-        );
-        assert!(
-            out.status.success(),
-            "{}",
-            String::from_utf8_lossy(&out.stderr)
-        );
+        ));
         names.push(name);
     }
     let mut args = vec!["model", "build", "--out", "m.json", "--quality"];
@@ -471,17 +422,12 @@ fn template_model_modes_and_score() {
         "{text}{}",
         String::from_utf8_lossy(&out.stderr)
     );
-    let out = conformd(
+    common::succeeded(conformd(
         &[
             "model", "modes", "--model", "m.json", "--modes", "2", "--out", "modes",
         ],
         d,
-    );
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    ));
     let sheet = image::open(d.join("modes/modes.png")).unwrap();
     assert_eq!(
         (sheet.width(), sheet.height()),
@@ -552,7 +498,7 @@ fn placement_through_the_cli() {
         p.distortion = [0.0; 5];
     }
     std::fs::write(d.join("rig.toml"), toml::to_string(&rig).unwrap()).unwrap();
-    let out = conformd(
+    common::succeeded(conformd(
         &[
             "simulate",
             "--rig",
@@ -566,12 +512,7 @@ fn placement_through_the_cli() {
             "place",
         ],
         d,
-    );
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    ));
     let set = std::fs::read_dir(d.join("place"))
         .unwrap()
         .next()

@@ -1346,16 +1346,13 @@ fn reviews_are_checked_and_a_rejected_result_leaves_the_export_and_the_model() {
         "{page}"
     );
     let spreads = d.join("repeatability.csv");
-    let out = Command::new(BIN)
-        .args(["export", "--results"])
-        .arg(d.join("data/results"))
-        .arg("--repeatability")
-        .arg(&spreads)
-        .output_within(CHILD_LIMIT);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+    common::succeeded(
+        Command::new(BIN)
+            .args(["export", "--results"])
+            .arg(d.join("data/results"))
+            .arg("--repeatability")
+            .arg(&spreads)
+            .output_within(CHILD_LIMIT),
     );
     let csv = std::fs::read_to_string(&spreads).unwrap();
     let mut lines = csv.lines();

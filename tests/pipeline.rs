@@ -249,18 +249,15 @@ fn a_killed_process_leaves_no_partial_result() {
         killed_while_writing >= 1,
         "no kill landed inside the write; widen the pause"
     );
-    let out = Command::new(BIN)
-        .arg("process")
-        .arg(set)
-        .arg("--config")
-        .arg(&cfg)
-        .arg("--out")
-        .arg(&results)
-        .output_within(CHILD_LIMIT);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+    let out = common::succeeded(
+        Command::new(BIN)
+            .arg("process")
+            .arg(set)
+            .arg("--config")
+            .arg(&cfg)
+            .arg("--out")
+            .arg(&results)
+            .output_within(CHILD_LIMIT),
     );
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(
@@ -640,14 +637,11 @@ fn the_example_station_file_is_complete_and_valid() {
     let rig_cfg = cfg.rig_config().unwrap();
     assert_eq!(rig_cfg.root, Path::new("/var/lib/conformd/captures"));
     assert_eq!(rig_cfg.capture.options.station, "crate-1");
-    let out = Command::new(BIN)
-        .arg("check")
-        .arg(&path)
-        .output_within(CHILD_LIMIT);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+    let out = common::succeeded(
+        Command::new(BIN)
+            .arg("check")
+            .arg(&path)
+            .output_within(CHILD_LIMIT),
     );
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(
@@ -940,18 +934,19 @@ fn a_cached_template_changes_no_result() {
     let cache = d.join("cache");
     let run = |out: &str| {
         let out = d.join(out);
-        let o = Command::new(BIN)
-            .arg("process")
-            .arg(set)
-            .arg("--config")
-            .arg(&cfg)
-            .arg("--out")
-            .arg(&out)
-            .arg("--template-cache")
-            .arg(&cache)
-            .env("RAYON_NUM_THREADS", "1")
-            .output_within(CHILD_LIMIT);
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        common::succeeded(
+            Command::new(BIN)
+                .arg("process")
+                .arg(set)
+                .arg("--config")
+                .arg(&cfg)
+                .arg("--out")
+                .arg(&out)
+                .arg("--template-cache")
+                .arg(&cache)
+                .env("RAYON_NUM_THREADS", "1")
+                .output_within(CHILD_LIMIT),
+        );
         std::fs::read(out.join(set.file_name().unwrap()).join("conformed.ply")).unwrap()
     };
     let built = run("built");

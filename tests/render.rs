@@ -80,23 +80,20 @@ fn cli_renders_a_png_and_colours_by_distance() {
     let scan = conformd::mesh::Mesh::new(upper, vec![]);
     conformd::mesh::write_mesh(&dir.path().join("scan.ply"), &scan).unwrap();
     let bin = env!("CARGO_BIN_EXE_conformd");
-    let out = std::process::Command::new(bin)
-        .args([
-            "render",
-            "body.obj",
-            "--colour-by",
-            "distance-to=scan.ply",
-            "--views",
-            "front,top",
-            "--out",
-            "b.png",
-        ])
-        .current_dir(dir.path())
-        .output_within(CHILD_LIMIT);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+    common::succeeded(
+        std::process::Command::new(bin)
+            .args([
+                "render",
+                "body.obj",
+                "--colour-by",
+                "distance-to=scan.ply",
+                "--views",
+                "front,top",
+                "--out",
+                "b.png",
+            ])
+            .current_dir(dir.path())
+            .output_within(CHILD_LIMIT),
     );
     let img = image::open(dir.path().join("b.png")).unwrap().to_rgb8();
     assert_eq!(img.dimensions(), (800, 600));

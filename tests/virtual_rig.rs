@@ -122,26 +122,23 @@ fn simulate_writes_standard_capture_sets() {
     let dir = tempfile::tempdir().unwrap();
     let rig_path = dir.path().join("rig.toml");
     std::fs::write(&rig_path, toml::to_string(&rig()).unwrap()).unwrap();
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_conformd"))
-        .args([
-            "simulate",
-            "--rig",
-            rig_path.to_str().unwrap(),
-            "--subject",
-            "pig",
-            "--pose",
-            "swing=10",
-            "--captures",
-            "2",
-            "--out",
-            "sim",
-        ])
-        .current_dir(dir.path())
-        .output_within(CHILD_LIMIT);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+    common::succeeded(
+        std::process::Command::new(env!("CARGO_BIN_EXE_conformd"))
+            .args([
+                "simulate",
+                "--rig",
+                rig_path.to_str().unwrap(),
+                "--subject",
+                "pig",
+                "--pose",
+                "swing=10",
+                "--captures",
+                "2",
+                "--out",
+                "sim",
+            ])
+            .current_dir(dir.path())
+            .output_within(CHILD_LIMIT),
     );
     let sets: Vec<_> = std::fs::read_dir(dir.path().join("sim"))
         .unwrap()

@@ -9,6 +9,26 @@ use conformd::synth::cases::Case;
 #[allow(unused_imports)]
 pub use deadline::{CHILD_LIMIT, Deadline};
 
+/// `out`, when its command succeeded; otherwise the test fails with the command's
+/// exit status and standard error (what a person reads first).
+pub fn succeeded(out: std::process::Output) -> std::process::Output {
+    assert!(
+        out.status.success(),
+        "the command failed ({}): {}",
+        out.status,
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out
+}
+
+/// Runs the `conformd` binary with `args` in `dir`, within the children's deadline.
+pub fn conformd(args: &[&str], dir: &std::path::Path) -> std::process::Output {
+    std::process::Command::new(env!("CARGO_BIN_EXE_conformd"))
+        .args(args)
+        .current_dir(dir)
+        .output_within(CHILD_LIMIT)
+}
+
 /// Runs one case with landmarks (or without) and returns the result.
 pub fn run(case: &Case, opts: &ConformOptions, landmarks: bool) -> Conformed {
     let lm = landmarks.then(|| (&case.template_landmarks[..], &case.scan_landmarks[..]));
