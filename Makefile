@@ -1,8 +1,9 @@
 # conformd — `make demo` runs the main job on built-in defaults, `make test` runs every
 # test. Both first install the system packages the build needs when they are missing.
 
-# fonts-dejavu-core: the labels of the subject history plots; libjs-three: the capture
-# page's 3D view (three.js served from /usr/share/javascript/three)
+# fonts-dejavu-core: the plots' font (a copy is built into the binary for machines
+# without it); libjs-three: the capture page's 3D view (three.js served from
+# /usr/share/javascript/three)
 APT_PACKAGES := libopencv-dev clang libclang-dev pkg-config libudev-dev fonts-dejavu-core libjs-three
 # `make deb`: dpkg-shlibdeps (dpkg-dev), strip (binutils), the manual page (help2man),
 # and lintian to check the package

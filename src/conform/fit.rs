@@ -775,6 +775,18 @@ mod tests {
         (sphere, truth, x)
     }
 
+    /// The fit of a template onto itself as it stands, with the default options.
+    fn fit_on(template: &Mesh) -> Fit<'_> {
+        let opts = ConformOptions::default();
+        Fit::new(
+            template,
+            &template.vertices,
+            &Similarity::default(),
+            None,
+            &opts,
+        )
+    }
+
     fn largest_gap(a: &[V3], b: &[V3]) -> f64 {
         a.iter()
             .zip(b)
@@ -798,14 +810,7 @@ mod tests {
                 *p
             }
         });
-        let opts = ConformOptions::default();
-        let mut fit = Fit::new(
-            &sphere,
-            &sphere.vertices,
-            &Similarity::default(),
-            None,
-            &opts,
-        );
+        let mut fit = fit_on(&sphere);
         let before = flipped_against(&x, &truth, &sphere.triangles);
         assert!(before >= 2, "{before} triangles turned over to start with");
         let moved_before = largest_gap(&x, &truth);
@@ -835,14 +840,7 @@ mod tests {
                 *p
             }
         });
-        let opts = ConformOptions::default();
-        let mut fit = Fit::new(
-            &sphere,
-            &sphere.vertices,
-            &Similarity::default(),
-            None,
-            &opts,
-        );
+        let mut fit = fit_on(&sphere);
         let before = flipped_against(&x, &truth, &sphere.triangles);
         assert!(before >= 20, "{before} triangles turned over to start with");
         let as_left = x.clone();

@@ -1,6 +1,8 @@
 //! Plots drawn with `plotters` into a PNG: a subject's history (measurements and weight over
-//! time) and x-y curves (a stereo matcher's wrong matches against its coverage). Text needs a TrueType font: DejaVu Sans from Debian's
-//! fonts-dejavu-core (installed by `make`); without it the plot is drawn unlabelled.
+//! time) and x-y curves (a stereo matcher's wrong matches against its coverage). Text is
+//! drawn in DejaVu Sans: the system's (Debian's fonts-dejavu-core), or the copy built into
+//! the binary (`assets/fonts`, its licence beside it) where the system has none, so a
+//! station's plots are never drawn unlabelled.
 
 use plotters::prelude::*;
 
@@ -27,18 +29,26 @@ const FONT_FILES: [&str; 2] = [
     "/usr/share/fonts/dejavu/DejaVuSans.ttf",
 ];
 
-/// Registers the font once; whether text can be drawn.
+/// DejaVu Sans as built into the binary, for a system without the font package.
+static BUILT_IN_FONT: &[u8] = include_bytes!("../../assets/fonts/DejaVuSans.ttf");
+
+/// The first of `files` that can be read, or the built-in copy.
+fn font_bytes(files: &[&str]) -> &'static [u8] {
+    files
+        .iter()
+        .find_map(|p| crate::files::read_limited(p.as_ref(), 64 << 20).ok())
+        .map_or(BUILT_IN_FONT, |bytes| Box::leak(bytes.into_boxed_slice()))
+}
+
+/// Registers the font once; whether text can be drawn (false only when plotters refuses
+/// the font itself).
 fn font() -> bool {
     static FONT: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
     *FONT.get_or_init(|| {
-        FONT_FILES.iter().any(|p| {
-            crate::files::read_limited(p.as_ref(), 64 << 20)
-                .ok()
-                .is_some_and(|bytes| {
-                    let bytes: &'static [u8] = Box::leak(bytes.into_boxed_slice());
-                    plotters::style::register_font("sans-serif", FontStyle::Normal, bytes).is_ok()
-                })
-        })
+        let bytes = font_bytes(&FONT_FILES);
+        plotters::style::register_font("sans-serif", FontStyle::Normal, bytes).is_ok()
+            || plotters::style::register_font("sans-serif", FontStyle::Normal, BUILT_IN_FONT)
+                .is_ok()
     })
 }
 
@@ -213,6 +223,26 @@ pub fn history_png(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A machine without the font package still labels its plots: the built-in copy is
+    /// taken, plotters accepts it, and text drawn with it puts ink on the image.
+    #[test]
+    fn without_the_font_package_the_built_in_font_draws_text() {
+        let bytes = font_bytes(&["/nonexistent/DejaVuSans.ttf"]);
+        assert!(std::ptr::eq(bytes, BUILT_IN_FONT));
+        plotters::style::register_font("built-in-test", FontStyle::Normal, bytes)
+            .unwrap_or_else(|_| panic!("plotters refused the built-in font"));
+        let (w, h) = (200u32, 40u32);
+        let mut rgb = vec![255u8; (w * h * 3) as usize];
+        {
+            let area = BitMapBackend::with_buffer(&mut rgb, (w, h)).into_drawing_area();
+            let style = ("built-in-test", 24).into_font().color(&BLACK);
+            area.draw_text("girth 1.25 m", &style, (4, 6)).unwrap();
+            area.present().unwrap();
+        }
+        let inked = rgb.chunks(3).filter(|p| p[0] < 128).count();
+        assert!(inked > 100, "{inked} dark pixels");
+    }
 
     #[test]
     fn the_time_axis_follows_the_span() {
