@@ -73,24 +73,21 @@ pub fn parts_of(neighbours: &[Vec<u32>], inside: &[bool]) -> Vec<Vec<u32>> {
 /// (ties to the first reached); `None` for the vertices outside and for an inside part
 /// with nothing outside it.
 pub fn nearest_outside(neighbours: &[Vec<u32>], inside: &[bool]) -> Vec<Option<u32>> {
-    let mut from: Vec<Option<u32>> = vec![None; neighbours.len()];
+    // the outside vertices bordering the inside ones, each its own origin
+    let mut origin: Vec<Option<u32>> = vec![None; neighbours.len()];
     let mut front: Vec<u32> = Vec::new();
     for (v, nb) in neighbours.iter().enumerate() {
         if !inside[v] && nb.iter().any(|&w| inside[w as usize]) {
+            origin[v] = Some(v as u32);
             front.push(v as u32);
         }
-    }
-    let mut origin: Vec<Option<u32>> = vec![None; neighbours.len()];
-    for &v in &front {
-        origin[v as usize] = Some(v);
     }
     while !front.is_empty() {
         let mut next = Vec::new();
         for &v in &front {
             for &w in &neighbours[v as usize] {
                 let w = w as usize;
-                if inside[w] && from[w].is_none() {
-                    from[w] = origin[v as usize];
+                if inside[w] && origin[w].is_none() {
                     origin[w] = origin[v as usize];
                     next.push(w as u32);
                 }
@@ -98,7 +95,12 @@ pub fn nearest_outside(neighbours: &[Vec<u32>], inside: &[bool]) -> Vec<Option<u
         }
         front = next;
     }
-    from
+    for (o, &i) in origin.iter_mut().zip(inside) {
+        if !i {
+            *o = None;
+        }
+    }
+    origin
 }
 
 /// Undirected edges `(a < b)` with the number of triangles using each, sorted. (By

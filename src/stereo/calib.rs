@@ -107,6 +107,15 @@ impl Pod {
         self.t.norm()
     }
 
+    /// One of the pod's cameras: its intrinsics and its pose in the rig.
+    pub fn camera(&self, right: bool) -> (Intrinsics, Pose) {
+        if right {
+            (self.right, self.right_pose())
+        } else {
+            (self.left, self.left_pose)
+        }
+    }
+
     /// The pod's calibration in OpenCV's FileStorage YAML (M1 D1 M2 D2 R T).
     pub fn opencv_yaml(&self) -> String {
         self.opencv_yaml_of(None)

@@ -59,12 +59,7 @@ pub fn render_camera(
     noise: f64,
     seed: u64,
 ) -> Rendered {
-    let k: Intrinsics = if right { pod.right } else { pod.left };
-    let pose = if right {
-        pod.right_pose()
-    } else {
-        pod.left_pose
-    };
+    let (k, pose): (Intrinsics, _) = pod.camera(right);
     let (w, h) = (k.width as usize, k.height as usize);
     // an undistorted canvas with a margin: barrel distortion shows more than the pinhole
     let margin = 0.3;
@@ -198,12 +193,7 @@ pub fn render_chessboard(
     noise: f64,
     seed: u64,
 ) -> Vec<u8> {
-    let k: Intrinsics = if right { pod.right } else { pod.left };
-    let pose = if right {
-        pod.right_pose()
-    } else {
-        pod.left_pose
-    };
+    let (k, pose): (Intrinsics, _) = pod.camera(right);
     let (w, h) = (k.width as usize, k.height as usize);
     // board pose as x_board = B x_rig + b; camera ray in the rig frame
     let (cr, centre) = (pose.r.transpose(), pose.centre());
