@@ -75,13 +75,7 @@ impl<'a> Fit<'a> {
         } else {
             Vec::new()
         };
-        let lap = solve::laplacian(
-            &rest,
-            &template.triangles,
-            default_method.then_some(opts.spring_weights),
-            &stiff,
-            &bridges,
-        );
+        let lap = solve::laplacian(&rest, &template.triangles, default_method, &stiff, &bridges);
         // Springs are scaled so that epsilon means the same for either weighting.
         let mean_diag = lap.diag.iter().sum::<f64>() / n as f64;
         let lap = solve::Laplacian {

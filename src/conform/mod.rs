@@ -93,17 +93,6 @@ pub enum RestShape {
     Mapped,
 }
 
-/// The springs' weights in the default method (the paper's are uniform).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum SpringWeights {
-    /// the mesh's own cotangent weights, obtuse triangles' negative ones clamped
-    Cotangent,
-    /// the cotangent weights of the surface's intrinsic Delaunay triangulation: never
-    /// negative, and the same however unevenly the surface is triangulated
-    IntrinsicDelaunay,
-}
-
 /// Options of a conformation; the `[conform]` part of a station config, or a
 /// `conform.toml` of its own. Distances are relative to the template's bounding-box
 /// diagonal after global mapping.
@@ -189,8 +178,6 @@ pub struct ConformOptions {
     /// after the elastic fit, give triangles the data turned inside out their rest shape
     /// back (default method; see `FoldRepair`)
     pub repair_folds: bool,
-    /// the springs' weights (default method)
-    pub spring_weights: SpringWeights,
     pub align: align::AlignOptions,
 }
 
@@ -231,7 +218,6 @@ impl Default for ConformOptions {
             solver_tolerance: 1e-4,
             solver_max_iterations: 300,
             repair_folds: true,
-            spring_weights: SpringWeights::Cotangent,
             align: align::AlignOptions::default(),
         }
     }

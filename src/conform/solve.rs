@@ -3,7 +3,6 @@
 //! `(diag(d) + eps L) X = B` with three right-hand columns at once, and per-vertex
 //! best-fit rotations for the rotation-aware (as-rigid-as-possible) springs.
 
-use super::SpringWeights;
 use crate::mesh::V3;
 use nalgebra::{Matrix3, UnitQuaternion};
 use rayon::prelude::*;
@@ -17,10 +16,9 @@ pub struct Laplacian {
     pub diag: Vec<f64>,
 }
 
-/// Edge weights: uniform springs (the paper's `k_ij`, `weights` None) or cotangent
-/// weights, the mesh's own or its intrinsic Delaunay triangulation's (clamped from below
-/// so obtuse triangles cannot make the system indefinite), each scaled by the stiffer of
-/// the two end vertices' group stiffness.
+/// Edge weights: uniform springs (the paper's `k_ij`) or cotangent weights (clamped from
+/// below so obtuse triangles cannot make the system indefinite), each scaled by the
+/// stiffer of the two end vertices' group stiffness.
 ///
 /// - `v`: #V rest positions; `tris`: #F triangles; `stiffness`: #V per-vertex factors
 /// - `bridges`: extra springs between pieces of a fragmented mesh, weighted as a typical
@@ -29,32 +27,24 @@ pub struct Laplacian {
 pub fn laplacian(
     v: &[V3],
     tris: &[[u32; 3]],
-    weights: Option<SpringWeights>,
+    cotangent: bool,
     stiffness: &[f64],
     bridges: &[[u32; 2]],
 ) -> Laplacian {
     let n = v.len();
     let mut tri = TriMat::new((n, n));
     let mut typical: Vec<f64> = Vec::new();
-    if let Some(kind) = weights {
-        let raw = match kind {
-            SpringWeights::Cotangent => {
-                let mut raw: Vec<(u32, u32, f64)> = Vec::with_capacity(tris.len() * 3);
-                for t in tris {
-                    for k in 0..3 {
-                        let (i, j, o) = (t[k], t[(k + 1) % 3], t[(k + 2) % 3]);
-                        let (a, b) = (v[i as usize] - v[o as usize], v[j as usize] - v[o as usize]);
-                        let cot = a.dot(&b) / a.cross(&b).norm().max(1e-300);
-                        raw.push((i.min(j), i.max(j), 0.5 * cot));
-                    }
-                }
-                raw.sort_unstable_by_key(|&(i, j, _)| (i, j));
-                raw
+    if cotangent {
+        let mut raw: Vec<(u32, u32, f64)> = Vec::with_capacity(tris.len() * 3);
+        for t in tris {
+            for k in 0..3 {
+                let (i, j, o) = (t[k], t[(k + 1) % 3], t[(k + 2) % 3]);
+                let (a, b) = (v[i as usize] - v[o as usize], v[j as usize] - v[o as usize]);
+                let cot = a.dot(&b) / a.cross(&b).norm().max(1e-300);
+                raw.push((i.min(j), i.max(j), 0.5 * cot));
             }
-            SpringWeights::IntrinsicDelaunay => {
-                crate::mesh::intrinsic::delaunay_cotan_weights(v, tris).0
-            }
-        };
+        }
+        raw.sort_unstable_by_key(|&(i, j, _)| (i, j));
         let mean = raw.iter().map(|r| r.2.abs()).sum::<f64>() / raw.len().max(1) as f64;
         let floor = 0.05 * mean;
         let mut k = 0;
@@ -512,7 +502,7 @@ mod tests {
     fn pcg_solves_a_path_graph() {
         let v: Vec<V3> = (0..50).map(|i| V3::new(i as f64, 0., 0.)).collect();
         let tris: Vec<[u32; 3]> = (0..48).map(|i| [i, i + 1, i + 2]).collect();
-        let lap = laplacian(&v, &tris, None, &vec![1.0; 50], &[]);
+        let lap = laplacian(&v, &tris, false, &vec![1.0; 50], &[]);
         let d: Vec<f64> = (0..50)
             .map(|i| if i % 7 == 0 { 1.0 } else { 0.0 })
             .collect();

@@ -4,7 +4,6 @@
 
 pub mod decimate;
 pub mod groups;
-pub mod intrinsic;
 pub mod io;
 pub mod landmarks;
 pub mod quality;
