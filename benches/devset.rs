@@ -4,9 +4,10 @@
 //! `-- --options FILE` conforms with a `[conform]`-style TOML of options, `-- --only
 //! NAME,...` keeps the cases of those meshes (`captured`, `box` included), `-- --export DIR` writes each case (template,
 //! scan, truth, landmarks) for the peer comparison in `benches/peer/`; `-- --set
-//! standard|hard|generic|all` picks the standard cases (default), the harder set of issue 29
-//! (its last column says which part, development or VALIDATION), the generic templates onto
-//! outside subjects scored by semantic landmarks, or all of them.
+//! standard|hard|generic|booth|all` picks the standard cases (default), the harder set of
+//! issue 29 (its last column says which part, development or VALIDATION), the generic
+//! templates onto outside subjects scored by semantic landmarks, the generic body onto
+//! people in a booth's stances, or all of them.
 
 use conformd::conform::{ConformOptions, conform};
 use conformd::mesh::io::write_mesh;
@@ -179,7 +180,10 @@ fn main() {
         );
     }
     if set == "generic" || set == "all" {
-        generic(&opts, &only, pictures.as_deref());
+        generic(&opts, &only, pictures.as_deref(), false);
+    }
+    if set == "booth" || set == "all" {
+        generic(&opts, &only, pictures.as_deref(), true);
     }
     if (set == "standard" || set == "all") && (only.is_empty() || only.contains(&"box")) {
         // the paper's shape change (not a posture): a sphere onto a box with a face
@@ -220,8 +224,9 @@ fn print_marks(s: &conformd::synth::semantic::SemanticScore) {
 }
 
 /// The generic templates onto outside subjects without landmarks (the up axis known),
-/// scored by the semantic landmarks marked on both.
-fn generic(opts: &ConformOptions, only: &[&str], pictures: Option<&std::path::Path>) {
+/// scored by the semantic landmarks marked on both; `booth`: the generic body onto
+/// people in a booth's stances (`semantic::booth_cases`) instead.
+fn generic(opts: &ConformOptions, only: &[&str], pictures: Option<&std::path::Path>, booth: bool) {
     use conformd::synth::semantic;
     println!(
         "{:<44} {:>6} | {:>6} {:>6} {:>6} | {:>5} {:>6} | {:>6}",
@@ -251,11 +256,21 @@ fn generic(opts: &ConformOptions, only: &[&str], pictures: Option<&std::path::Pa
         Some(p) if p == "validation" => vec![devset::Part::Validation],
         _ => vec![devset::Part::Development, devset::Part::Validation],
     };
-    let cases = parts.iter().flat_map(|&part| {
-        turns.iter().flat_map(move |&t| {
-            semantic::generic_cases_turned(part, only, t).expect("generic cases")
-        })
-    });
+    let cases: Vec<semantic::SemanticCase> = if booth {
+        parts
+            .iter()
+            .flat_map(|&part| semantic::booth_cases(part).expect("booth cases"))
+            .collect()
+    } else {
+        parts
+            .iter()
+            .flat_map(|&part| {
+                turns.iter().flat_map(move |&t| {
+                    semantic::generic_cases_turned(part, only, t).expect("generic cases")
+                })
+            })
+            .collect()
+    };
     for c in cases {
         let t = Instant::now();
         let o = if with_front {
@@ -362,7 +377,8 @@ fn generic(opts: &ConformOptions, only: &[&str], pictures: Option<&std::path::Pa
         }
     }
     println!(
-        "generic: mean over {n} cases {:.3}%",
+        "{}: mean over {n} cases {:.3}%",
+        if booth { "booth" } else { "generic" },
         sum / n.max(1) as f64 * 100.0
     );
 }

@@ -28,6 +28,45 @@ fn the_development_meshes_are_what_the_set_needs() {
 }
 
 #[test]
+fn booth_stances_put_the_hands_where_they_say() {
+    // the man (z up, facing -y at rest), posed through his automatic rig: hand tips
+    // against his head top and his nose; the legs keep him standing (heels at the floor)
+    use conformd::synth::posing::{Stance, stand};
+    let man = devset::load("human").unwrap();
+    let marks = conformd::synth::semantic::marks_of("human").unwrap();
+    let at = |x: &[conformd::mesh::V3], name: &str| {
+        x[marks.iter().find(|m| m.0 == name).unwrap().1 as usize]
+    };
+    let front = conformd::mesh::V3::new(0.0, -1.0, 0.0);
+    for stance in Stance::ALL {
+        let x = stand(&man, front, stance).unwrap();
+        assert_eq!(x.len(), man.vertices.len());
+        let (head, nose) = (at(&x, "head_top"), at(&x, "nose_tip"));
+        let hands = [at(&x, "hand_tip_l"), at(&x, "hand_tip_r")];
+        let ahead = |p: conformd::mesh::V3| (p - nose).dot(&front);
+        for h in hands {
+            match stance {
+                Stance::ArmsRaised => assert!(h.z > head.z, "{stance:?}: {h:?}"),
+                Stance::ArmsForward => assert!(ahead(h) > 0.3 && h.z < head.z, "{stance:?}: {h:?}"),
+                Stance::HandsAtBelly => {
+                    assert!(h.z < nose.z - 0.3 && ahead(h) > -0.1, "{stance:?}: {h:?}")
+                }
+            }
+        }
+        let apart = |x: &[conformd::mesh::V3]| (at(x, "heel_l") - at(x, "heel_r")).norm();
+        if stance == Stance::ArmsRaised {
+            assert!(apart(&x) > apart(&man.vertices) + 0.1, "feet not apart");
+        }
+        let lift = at(&x, "heel_l").z - at(&man.vertices, "heel_l").z;
+        assert!(lift.abs() < 0.05, "{stance:?}: heel lifted {lift}");
+        // a turned limb, not a crumple: the armpits may fold a triangle or two
+        let folded =
+            quality::folded_triangles(&conformd::mesh::Mesh::new(x, man.triangles.clone()));
+        assert!(folded <= 2, "{stance:?}: {folded} folded");
+    }
+}
+
+#[test]
 fn posing_gives_a_posture_change_not_a_crumple() {
     for c in devset::standard_cases(&[]).unwrap() {
         let truth = c.case.truth.as_ref().unwrap();
@@ -640,6 +679,95 @@ fn known_failure_the_man_posed_has_no_limb_end_on_another_limb() {
         "{name}: on another limb {:?}",
         s.wrong_limb
     );
+}
+
+/// The generic body onto people in a booth's stances (`semantic::booth_cases`: the arms
+/// turned at the shoulders, which the generic set never does), the booth's front known as
+/// a booth knows it: (case, mean semantic error %). Bounds 1.25x the figures measured
+/// (2026-12-07: 1.642, 1.533, 1.191, 1.514; the same with the up axis alone), no limb
+/// end on another limb. The hands at the belly are a known failure
+/// (`known_failure_hands_at_the_belly_*`).
+const BOOTH_BOUNDS: &[(&str, f64)] = &[
+    ("generic body onto human, arms forward", 2.05),
+    ("generic body onto human, arms raised", 1.92),
+    ("generic body onto woman, arms forward", 1.49),
+    ("generic body onto woman, arms raised", 1.89),
+];
+
+/// The booth's cases of a part whose names `want`, each fitted with the front known:
+/// (case, score).
+fn booth_fits(
+    part: devset::Part,
+    want: fn(&str) -> bool,
+) -> Vec<(
+    conformd::synth::semantic::SemanticCase,
+    conformd::synth::semantic::SemanticScore,
+)> {
+    let opts = ConformOptions::default();
+    conformd::synth::semantic::booth_cases(part)
+        .unwrap()
+        .into_iter()
+        .filter(|c| want(&c.name))
+        .map(|c| {
+            let r = c.conform(&c.options_with_front(&opts)).unwrap();
+            let s = c.score(&r.mesh.vertices);
+            eprintln!(
+                "{:<44} {part:?}: mean {:.3}%, max {:.2}%, on another limb {:?}",
+                c.name,
+                s.mean * 100.0,
+                s.max * 100.0,
+                s.wrong_limb
+            );
+            (c, s)
+        })
+        .collect()
+}
+
+#[test]
+fn booth_stances_hold_per_case_with_the_front_known() {
+    let mut failures = Vec::new();
+    let mut seen = 0;
+    for part in [devset::Part::Development, devset::Part::Validation] {
+        for (c, s) in booth_fits(part, |n| !n.contains("hands at the belly")) {
+            let &(_, mean) = BOOTH_BOUNDS
+                .iter()
+                .find(|b| b.0 == c.name)
+                .unwrap_or_else(|| panic!("no bound for '{}'", c.name));
+            seen += 1;
+            if s.mean * 100.0 > mean || !s.wrong_limb.is_empty() {
+                failures.push(format!(
+                    "{}: mean {:.3}% (bound {mean}%), on another limb {:?}",
+                    c.name,
+                    s.mean * 100.0,
+                    s.wrong_limb
+                ));
+            }
+        }
+    }
+    assert_eq!(seen, BOOTH_BOUNDS.len(), "every bound has its case");
+    assert!(failures.is_empty(), "{failures:#?}");
+}
+
+/// The right outcome for hands held before the belly: each hand tip within 3% of the
+/// diagonal of its place. Known to fail (2026-12-07: the rig fit leaves the forearms
+/// hanging at the hips, hand tips 16-17% off, both of the man's and one of the woman's);
+/// when a change
+/// fixes it this test fails saying so, and the stance joins `BOOTH_BOUNDS`.
+#[test]
+#[should_panic(expected = "hand tips off")]
+fn known_failure_hands_at_the_belly_are_fitted_at_the_belly() {
+    let mut off = Vec::new();
+    for part in [devset::Part::Development, devset::Part::Validation] {
+        for (c, s) in booth_fits(part, |n| n.contains("hands at the belly")) {
+            off.extend(
+                s.per_mark
+                    .iter()
+                    .filter(|m| m.0.starts_with("hand_tip") && m.1 > 0.03)
+                    .map(|m| format!("{}: {} {:.1}%", c.name, m.0, m.1 * 100.0)),
+            );
+        }
+    }
+    assert!(off.is_empty(), "hand tips off: {off:?}");
 }
 
 /// A generic case fitted: how far the result faces the way the subject faces (cosine,

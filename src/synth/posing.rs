@@ -158,6 +158,120 @@ fn bend_twist(x: &mut [V3], s: &PoseSettings) {
     }
 }
 
+/// A person's stance in a body-scanning booth, far from the T-pose of the outside body
+/// meshes: the arms turned at the shoulders, which [`pose`] (turning limbs part-way
+/// along) never does.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Stance {
+    /// upper arms hanging, forearms forward and in, the hands before the belly
+    HandsAtBelly,
+    /// both arms reaching forward, a little down
+    ArmsForward,
+    /// both arms raised above the head, the feet apart
+    ArmsRaised,
+}
+
+impl Stance {
+    pub const ALL: [Stance; 3] = [
+        Stance::HandsAtBelly,
+        Stance::ArmsForward,
+        Stance::ArmsRaised,
+    ];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Stance::HandsAtBelly => "hands at the belly",
+            Stance::ArmsForward => "arms forward",
+            Stance::ArmsRaised => "arms raised",
+        }
+    }
+
+    /// The world directions (up, outward to its own side, forward) an arm's upper and
+    /// lower bone point in.
+    fn arm_directions(self) -> ([f64; 3], [f64; 3]) {
+        match self {
+            Stance::HandsAtBelly => ([-0.95, 0.2, 0.15], [0.15, -0.6, 0.8]),
+            Stance::ArmsForward => ([-0.15, 0.12, 1.0], [-0.1, -0.05, 1.0]),
+            Stance::ArmsRaised => ([1.0, 0.35, 0.05], [1.0, 0.15, 0.1]),
+        }
+    }
+
+    /// How far each leg swings out at the hip, degrees (the feet apart; in, together).
+    fn leg_spread_deg(self) -> f64 {
+        match self {
+            Stance::HandsAtBelly => -4.0,
+            Stance::ArmsForward => 3.0,
+            Stance::ArmsRaised => 8.0,
+        }
+    }
+}
+
+/// A person's mesh (z up, in any rest pose with the limbs away from the body) in a
+/// booth stance, through its automatic rig (`TemplateRig::automatic`: each limb's upper
+/// bone from where it meets the body, its lower bone from half-way): each arm's bones
+/// turned to point the stance's way, each leg swung out at the hip as the stance says. `front` is the way the person faces
+/// (level). Vertex order kept. Fails when the rig does not find two arms and two legs.
+pub fn stand(mesh: &Mesh, front: V3, stance: Stance) -> Result<Vec<V3>, String> {
+    use crate::template::rig::{AutoRigSettings, RigPose, TemplateRig};
+    let rig = TemplateRig::automatic(mesh, &AutoRigSettings::default())?;
+    let up = V3::z();
+    let front = V3::new(front.x, front.y, 0.0)
+        .try_normalize(1e-12)
+        .ok_or("the front is vertical")?;
+    let left = up.cross(&front);
+    let dir = |b: usize| (rig.bones[b].tail - rig.bones[b].head).normalize();
+    let mut pose = RigPose::rest(&rig);
+    let (mut arms, mut legs) = (0, 0);
+    for (upper, bone) in rig.bones.iter().enumerate() {
+        let is_root_limb = bone.name.ends_with("_upper") && bone.parent == Some(0);
+        if !is_root_limb {
+            continue;
+        }
+        let Some(lower) = rig
+            .bones
+            .iter()
+            .position(|b| b.parent == Some(upper) && b.name.ends_with("_lower"))
+        else {
+            continue;
+        };
+        let d = dir(upper);
+        let side = if d.dot(&left) >= 0.0 { left } else { -left };
+        let arm = d.dot(&side) > 0.7;
+        let leg = d.dot(&up) < -0.7;
+        if !arm && !leg {
+            continue;
+        }
+        if arm {
+            arms += 1;
+        } else {
+            legs += 1;
+        }
+        if leg {
+            // out about the front axis, the foot staying under the hip's side
+            let out = side.dot(&left).signum();
+            let axis = Unit::new_normalize(front * out);
+            pose.turns[upper] =
+                Rotation3::from_axis_angle(&axis, stance.leg_spread_deg().to_radians());
+            continue;
+        }
+        let world = |[u, s, f]: [f64; 3]| (up * u + side * s + front * f).normalize();
+        let (to_upper, to_lower) = stance.arm_directions();
+        let upper_turn = Rotation3::rotation_between(&d, &world(to_upper))
+            .ok_or("a limb bone turned exactly round")?;
+        let in_upper = upper_turn.inverse() * world(to_lower);
+        let lower_turn = Rotation3::rotation_between(&dir(lower), &in_upper)
+            .ok_or("a limb bone turned exactly round")?;
+        pose.turns[upper] = upper_turn;
+        pose.turns[lower] = lower_turn;
+    }
+    if arms != 2 || legs != 2 {
+        return Err(format!(
+            "the automatic rig found {arms} arms and {legs} legs, not two of each"
+        ));
+    }
+    Ok(rig.pose(&mesh.vertices, &pose))
+}
+
 fn smoothstep(t: f64) -> f64 {
     let t = t.clamp(0.0, 1.0);
     t * t * (3.0 - 2.0 * t)

@@ -191,7 +191,6 @@ pub fn generic_cases_turned(
             continue;
         }
         let fig = template::build(kind, 10_000);
-        let named = fig.landmark_vertices();
         let subject = devset::load(subject_name)?;
         let marks = marks_of(subject_name)?;
         let rest_front = rest_front(&subject, &marks)
@@ -216,51 +215,140 @@ pub fn generic_cases_turned(
             spec.heading += turn;
             let mut rng = ChaCha8Rng::seed_from_u64(spec.seed);
             let (truth, _) = posed(&subject, &spec, subject.diagonal(), &mut rng);
-            let posed_mesh = Mesh::new(truth.clone(), subject.triangles.clone());
-            let (scan, _) = devset::scan_as_spec_says(&posed_mesh, &spec);
-            let marks: Vec<Mark> = marks
-                .iter()
-                .map(|(name, v)| {
-                    let vertex = named
-                        .get(name)
-                        .copied()
-                        .ok_or_else(|| format!("the generic template has no landmark '{name}'"))?;
-                    let truth = *truth.get(*v as usize).ok_or_else(|| {
-                        format!("{subject_name}: mark {name} on vertex {v}, past the mesh")
-                    })?;
-                    Ok(Mark {
-                        name: name.clone(),
-                        vertex,
-                        truth,
-                    })
-                })
-                .collect::<Result<_, String>>()?;
-            let front =
-                nalgebra::Rotation3::from_axis_angle(&V3::z_axis(), spec.heading.to_radians())
-                    * rest_front;
             let turned = if turn == 0.0 {
                 String::new()
             } else {
                 format!(", turned {turn}")
             };
-            out.push(SemanticCase {
+            let subject = Subject {
+                name: subject_name,
+                mesh: &subject,
+                marks: &marks,
+                rest_front,
+            };
+            out.push(semantic_case(
+                &subject,
                 kind,
-                rig: crate::template::rig::TemplateRig::generic(&fig, kind),
-                name: format!(
-                    "generic {} onto {subject_name}, {what}{turned}",
-                    match kind {
-                        Kind::Pig => "pig",
-                        Kind::Body => "body",
-                    }
-                ),
-                template: fig.mesh.clone(),
-                scan,
-                marks,
-                diag: posed_mesh.diagonal(),
+                &fig,
+                truth,
+                &spec,
+                &format!("{what}{turned}"),
                 part,
-                front,
-            });
+            )?);
         }
+    }
+    Ok(out)
+}
+
+/// An outside subject with its semantic marks and the way it faces at rest.
+struct Subject<'a> {
+    name: &'a str,
+    mesh: &'a Mesh,
+    marks: &'a [(String, u32)],
+    rest_front: V3,
+}
+
+/// The case of the generic template `fig` onto `subject` posed as `truth` (its vertices,
+/// already turned to `spec.heading`), scanned as `spec` says.
+fn semantic_case(
+    subject: &Subject,
+    kind: Kind,
+    fig: &template::figure::Figure,
+    truth: Vec<V3>,
+    spec: &DevCaseSpec,
+    what: &str,
+    part: Part,
+) -> Result<SemanticCase, String> {
+    let named = fig.landmark_vertices();
+    let posed_mesh = Mesh::new(truth.clone(), subject.mesh.triangles.clone());
+    let (scan, _) = devset::scan_as_spec_says(&posed_mesh, spec);
+    let marks: Vec<Mark> = subject
+        .marks
+        .iter()
+        .map(|(name, v)| {
+            let vertex = named
+                .get(name)
+                .copied()
+                .ok_or_else(|| format!("the generic template has no landmark '{name}'"))?;
+            let truth = *truth.get(*v as usize).ok_or_else(|| {
+                format!("{}: mark {name} on vertex {v}, past the mesh", subject.name)
+            })?;
+            Ok(Mark {
+                name: name.clone(),
+                vertex,
+                truth,
+            })
+        })
+        .collect::<Result<_, String>>()?;
+    let front = nalgebra::Rotation3::from_axis_angle(&V3::z_axis(), spec.heading.to_radians())
+        * subject.rest_front;
+    Ok(SemanticCase {
+        kind,
+        rig: crate::template::rig::TemplateRig::generic(fig, kind),
+        name: format!(
+            "generic {} onto {}, {what}",
+            match kind {
+                Kind::Pig => "pig",
+                Kind::Body => "body",
+            },
+            subject.name
+        ),
+        template: fig.mesh.clone(),
+        scan,
+        marks,
+        diag: posed_mesh.diagonal(),
+        part,
+        front,
+    })
+}
+
+/// The generic body onto people in a booth's stances (`posing::Stance`: hands at the
+/// belly, arms forward, arms raised; the arms turned at the shoulders, which the other
+/// cases never do), each to its own heading: the man (development) and the woman
+/// (validation).
+pub fn booth_cases(part: Part) -> Result<Vec<SemanticCase>, String> {
+    let subject_name = match part {
+        Part::Development => "human",
+        Part::Validation => "woman",
+    };
+    let fig = template::build(Kind::Body, 10_000);
+    let mesh = devset::load(subject_name)?;
+    let marks = marks_of(subject_name)?;
+    let rest_front = rest_front(&mesh, &marks)
+        .ok_or_else(|| format!("{subject_name}: no marks that say which way it faces"))?;
+    let subject = Subject {
+        name: subject_name,
+        mesh: &mesh,
+        marks: &marks,
+        rest_front,
+    };
+    let base = if part == Part::Validation { 300 } else { 200 };
+    let mut out = Vec::new();
+    for (k, (stance, heading)) in super::posing::Stance::ALL
+        .into_iter()
+        .zip([25.0, -110.0, 160.0])
+        .enumerate()
+    {
+        let spec = DevCaseSpec {
+            heading,
+            seed: base + k as u64,
+            ..DevCaseSpec::default()
+        };
+        let mut truth = super::posing::stand(&mesh, rest_front, stance)?;
+        let c = truth.iter().sum::<V3>() / truth.len() as f64;
+        let rot = nalgebra::Rotation3::from_axis_angle(&V3::z_axis(), heading.to_radians());
+        for p in &mut truth {
+            *p = c + rot * (*p - c);
+        }
+        out.push(semantic_case(
+            &subject,
+            Kind::Body,
+            &fig,
+            truth,
+            &spec,
+            stance.name(),
+            part,
+        )?);
     }
     Ok(out)
 }
