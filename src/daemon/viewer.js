@@ -232,6 +232,7 @@
     box.dataset.measurements = state.measurements.length;
     // since the page was asked for: what the viewer benchmark reports
     box.dataset.loadMs = Math.round(performance.now());
+    // test-hooks:begin (served only by a build with the test-hooks feature)
     // n frames drawn at once while the view turns once round, for the benchmark
     state.timeFrames = (n, moving) => {
       lod(!!moving);
@@ -246,6 +247,7 @@
       render();
       return (performance.now() - t0) / n;
     };
+    // test-hooks:end
     box.dataset.state = "ready";
     render();
   }).catch((e) => fail(e.message));
