@@ -68,8 +68,9 @@ fn turned(x: &mut [V3], degrees: f64) {
 }
 
 /// The subjects of a part, each in `count` postures. Development: the generic pig and
-/// body of other proportions (and another triangulation), the koala and the man;
-/// validation (never tuned on): the cow and the woman.
+/// body of other proportions (and another triangulation), the koala and the man, and the
+/// man in a booth's three stances (`posing::Stance`, whatever `count`); validation
+/// (never tuned on): the cow and the woman, and the woman in the booth's stances.
 pub fn subjects(part: Part, count: usize, names: &[&str]) -> Result<Vec<Subject>, String> {
     let list: &[(&str, Kind)] = match part {
         Part::Development => &[
@@ -77,8 +78,13 @@ pub fn subjects(part: Part, count: usize, names: &[&str]) -> Result<Vec<Subject>
             ("koala", Kind::Pig),
             ("generic body", Kind::Body),
             ("human", Kind::Body),
+            ("booth man", Kind::Body),
         ],
-        Part::Validation => &[("cow", Kind::Pig), ("woman", Kind::Body)],
+        Part::Validation => &[
+            ("cow", Kind::Pig),
+            ("woman", Kind::Body),
+            ("booth woman", Kind::Body),
+        ],
     };
     let mut out = Vec::new();
     for (k, &(name, kind)) in list.iter().enumerate() {
@@ -125,6 +131,28 @@ pub fn subjects(part: Part, count: usize, names: &[&str]) -> Result<Vec<Subject>
                     &named,
                     &marks,
                     V3::new(heading.to_radians().cos(), heading.to_radians().sin(), 0.0),
+                    seed + i as u64,
+                ));
+            }
+        } else if let Some(person) = name.strip_prefix("booth ") {
+            // one person standing as a booth's people stand: the arms turned at the
+            // shoulders, the feet in or apart
+            let mesh_name = if person == "man" { "human" } else { person };
+            let subject = devset::load(mesh_name)?;
+            let marks = super::semantic::marks_of(mesh_name)?;
+            let rest_front = super::semantic::rest_front(&subject, &marks)
+                .ok_or_else(|| format!("{name}: no marks that say which way it faces"))?;
+            for (i, stance) in posing::Stance::ALL.into_iter().enumerate() {
+                let mut x = posing::stand(&subject, rest_front, stance)?;
+                let heading = rng.random_range(-15.0..15.0);
+                turned(&mut x, heading);
+                let rot = nalgebra::Rotation3::from_axis_angle(&V3::z_axis(), heading.to_radians());
+                let posed = Mesh::new(x, subject.triangles.clone());
+                postures.push(scanned(
+                    &posed,
+                    &named,
+                    &marks,
+                    rot * rest_front,
                     seed + i as u64,
                 ));
             }
