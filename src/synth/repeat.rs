@@ -134,47 +134,44 @@ pub fn subjects(part: Part, count: usize, names: &[&str]) -> Result<Vec<Subject>
                     seed + i as u64,
                 ));
             }
-        } else if let Some(person) = name.strip_prefix("booth ") {
-            // one person standing as a booth's people stand: the arms turned at the
-            // shoulders, the feet in or apart
-            let mesh_name = if person == "man" { "human" } else { person };
+        } else {
+            // an outside subject, posed part-way along its limbs as it moves in a crate
+            // or a booth; or (`booth ...`) standing as a booth's people stand, the arms
+            // turned at the shoulders
+            let booth = name.strip_prefix("booth ");
+            let mesh_name = match booth {
+                Some("man") => "human",
+                Some(person) => person,
+                None => name,
+            };
             let subject = devset::load(mesh_name)?;
             let marks = super::semantic::marks_of(mesh_name)?;
             let rest_front = super::semantic::rest_front(&subject, &marks)
                 .ok_or_else(|| format!("{name}: no marks that say which way it faces"))?;
-            for (i, stance) in posing::Stance::ALL.into_iter().enumerate() {
-                let mut x = posing::stand(&subject, rest_front, stance)?;
-                let heading = rng.random_range(-15.0..15.0);
-                turned(&mut x, heading);
-                let rot = nalgebra::Rotation3::from_axis_angle(&V3::z_axis(), heading.to_radians());
-                let posed = Mesh::new(x, subject.triangles.clone());
-                postures.push(scanned(
-                    &posed,
-                    &named,
-                    &marks,
-                    rot * rest_front,
-                    seed + i as u64,
-                ));
-            }
-        } else {
-            let subject = devset::load(name)?;
-            let marks = super::semantic::marks_of(name)?;
-            let rest_front = super::semantic::rest_front(&subject, &marks)
-                .ok_or_else(|| format!("{name}: no marks that say which way it faces"))?;
-            let nb = topology::vertex_neighbours(subject.vertices.len(), &subject.triangles);
-            let ext = posing::extremities(&subject, &nb, 8);
-            for i in 0..count {
-                // limbs and the whole moved as a subject moves in a crate or a booth; its
-                // size kept (the same subject)
-                let settings = PoseSettings {
-                    limbs: 8,
-                    limb_degrees: (5.0, 25.0),
-                    bend: 10.0,
-                    twist: 8.0,
-                    scale: 1.0,
-                    seed: seed + i as u64,
-                };
-                let mut x = posing::pose(&subject, &nb, &ext, &settings);
+            let poses: Vec<Vec<V3>> = if booth.is_some() {
+                posing::Stance::ALL
+                    .into_iter()
+                    .map(|stance| posing::stand(&subject, rest_front, stance))
+                    .collect::<Result<_, _>>()?
+            } else {
+                let nb = topology::vertex_neighbours(subject.vertices.len(), &subject.triangles);
+                let ext = posing::extremities(&subject, &nb, 8);
+                (0..count)
+                    .map(|i| {
+                        // the subject's size kept (the same subject)
+                        let settings = PoseSettings {
+                            limbs: 8,
+                            limb_degrees: (5.0, 25.0),
+                            bend: 10.0,
+                            twist: 8.0,
+                            scale: 1.0,
+                            seed: seed + i as u64,
+                        };
+                        posing::pose(&subject, &nb, &ext, &settings)
+                    })
+                    .collect()
+            };
+            for (i, mut x) in poses.into_iter().enumerate() {
                 let heading = rng.random_range(-15.0..15.0);
                 turned(&mut x, heading);
                 let rot = nalgebra::Rotation3::from_axis_angle(&V3::z_axis(), heading.to_radians());
