@@ -209,18 +209,38 @@ impl Stance {
 /// A person's mesh (z up, in any rest pose with the limbs away from the body) in a
 /// booth stance, through its automatic rig (`TemplateRig::automatic`: each limb's upper
 /// bone from where it meets the body, its lower bone from half-way): each arm's bones
-/// turned to point the stance's way, each leg swung out at the hip as the stance says. `front` is the way the person faces
-/// (level). Vertex order kept. Fails when the rig does not find two arms and two legs.
-pub fn stand(mesh: &Mesh, front: V3, stance: Stance) -> Result<Vec<V3>, String> {
-    use crate::template::rig::{AutoRigSettings, RigPose, TemplateRig};
+/// turned to point the stance's way, each leg swung out at the hip as the stance says.
+/// `front` is the way the person faces (level). One pose per stance of `stances` (the
+/// rig found once), vertex order kept. Fails when the rig does not find two arms and two
+/// legs.
+pub fn stand(mesh: &Mesh, front: V3, stances: &[Stance]) -> Result<Vec<Vec<V3>>, String> {
+    use crate::template::rig::{AutoRigSettings, TemplateRig};
     let rig = TemplateRig::automatic(mesh, &AutoRigSettings::default())?;
     let up = V3::z();
     let front = V3::new(front.x, front.y, 0.0)
         .try_normalize(1e-12)
         .ok_or("the front is vertical")?;
     let left = up.cross(&front);
+    stances
+        .iter()
+        .map(|&stance| {
+            let pose = stance_pose(&rig, up, front, left, stance)?;
+            Ok(rig.pose(&mesh.vertices, &pose))
+        })
+        .collect()
+}
+
+/// The turns of `rig`'s arm and leg bones for `stance`, in the frame `up`, `front`,
+/// `left`.
+fn stance_pose(
+    rig: &crate::template::rig::TemplateRig,
+    up: V3,
+    front: V3,
+    left: V3,
+    stance: Stance,
+) -> Result<crate::template::rig::RigPose, String> {
     let dir = |b: usize| (rig.bones[b].tail - rig.bones[b].head).normalize();
-    let mut pose = RigPose::rest(&rig);
+    let mut pose = crate::template::rig::RigPose::rest(rig);
     let (mut arms, mut legs) = (0, 0);
     for (upper, bone) in rig.bones.iter().enumerate() {
         let is_root_limb = bone.name.ends_with("_upper") && bone.parent == Some(0);
@@ -269,7 +289,7 @@ pub fn stand(mesh: &Mesh, front: V3, stance: Stance) -> Result<Vec<V3>, String> 
             "the automatic rig found {arms} arms and {legs} legs, not two of each"
         ));
     }
-    Ok(rig.pose(&mesh.vertices, &pose))
+    Ok(pose)
 }
 
 fn smoothstep(t: f64) -> f64 {

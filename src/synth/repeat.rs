@@ -149,10 +149,7 @@ pub fn subjects(part: Part, count: usize, names: &[&str]) -> Result<Vec<Subject>
             let rest_front = super::semantic::rest_front(&subject, &marks)
                 .ok_or_else(|| format!("{name}: no marks that say which way it faces"))?;
             let poses: Vec<Vec<V3>> = if booth.is_some() {
-                posing::Stance::ALL
-                    .into_iter()
-                    .map(|stance| posing::stand(&subject, rest_front, stance))
-                    .collect::<Result<_, _>>()?
+                posing::stand(&subject, rest_front, &posing::Stance::ALL)?
             } else {
                 let nb = topology::vertex_neighbours(subject.vertices.len(), &subject.triangles);
                 let ext = posing::extremities(&subject, &nb, 8);

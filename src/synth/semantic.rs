@@ -324,9 +324,12 @@ pub fn booth_cases(part: Part) -> Result<Vec<SemanticCase>, String> {
     };
     let base = if part == Part::Validation { 300 } else { 200 };
     let mut out = Vec::new();
-    for (k, (stance, heading)) in super::posing::Stance::ALL
+    let stances = super::posing::Stance::ALL;
+    let posed = super::posing::stand(&mesh, rest_front, &stances)?;
+    for (k, ((stance, heading), mut truth)) in stances
         .into_iter()
         .zip([25.0, -110.0, 160.0])
+        .zip(posed)
         .enumerate()
     {
         let spec = DevCaseSpec {
@@ -334,7 +337,6 @@ pub fn booth_cases(part: Part) -> Result<Vec<SemanticCase>, String> {
             seed: base + k as u64,
             ..DevCaseSpec::default()
         };
-        let mut truth = super::posing::stand(&mesh, rest_front, stance)?;
         let c = truth.iter().sum::<V3>() / truth.len() as f64;
         let rot = nalgebra::Rotation3::from_axis_angle(&V3::z_axis(), heading.to_radians());
         for p in &mut truth {
