@@ -600,6 +600,65 @@ impl Drop for Child {
 }
 
 #[test]
+fn the_station_demo_runs_to_its_end() {
+    // `make demo` on three of its postures: every capture fired through the box is
+    // processed, fits as the README's table says, and the model and its sheet come out
+    let dir = tempfile::tempdir().unwrap();
+    let out = conformd(
+        &["demo", "station", "--captures", "3", "--out", "d"],
+        dir.path(),
+    );
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(!stdout.contains("FAILED"), "{stdout}");
+    let rows: Vec<Vec<&str>> = stdout
+        .lines()
+        .map(|l| l.split_whitespace().collect::<Vec<_>>())
+        .filter(|w| w.get(1).is_some_and(|s| s.starts_with("pig-")))
+        .collect();
+    let subjects: Vec<&str> = rows.iter().map(|w| w[1]).collect();
+    assert_eq!(subjects, ["pig-01", "pig-02", "pig-03"], "{stdout}");
+    for w in &rows {
+        // the README's run: 0.049-0.050% of the diagonal, 26-28% filled (the crate's
+        // floor and the far side unseen)
+        let pct = |s: &str| s.trim_end_matches('%').parse::<f64>().unwrap();
+        let (distance, filled) = (pct(w[3]), pct(w[4]));
+        assert!(distance < 0.075, "{stdout}");
+        assert!((15.0..40.0).contains(&filled), "{stdout}");
+    }
+    assert!(
+        stdout.contains("3 captures processed by the daemon"),
+        "{stdout}"
+    );
+    let d = dir.path().join("d");
+    for id in rows.iter().map(|w| w[0]) {
+        let result = d.join("station/results").join(id);
+        for f in ["conformed.ply", "scan.ply", "report.json", "preview.png"] {
+            assert!(result.join(f).is_file(), "{} has no {f}", result.display());
+        }
+    }
+    let model: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(d.join("station/model.json")).unwrap()).unwrap();
+    assert_eq!(model["samples"].as_array().map(Vec::len), Some(3));
+    let sheet = std::fs::read(d.join("modes/modes.png")).unwrap();
+    assert!(sheet.starts_with(b"\x89PNG"), "the mode sheet is no PNG");
+    assert!(stdout.contains("mode sheet:"), "{stdout}");
+    // fewer postures than the model needs: refused before anything runs
+    let out = conformd(
+        &["demo", "station", "--captures", "2", "--out", "e"],
+        dir.path(),
+    );
+    assert!(!out.status.success());
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains("--captures"), "{stderr}");
+    assert!(!dir.path().join("e").exists());
+}
+
+#[test]
 fn the_station_demo_stops_on_ctrl_c() {
     // Ctrl-C once the demo's daemon runs (it owns SIGINT then): the demo says why it
     // stopped and exits, leaving no worker behind
@@ -607,7 +666,14 @@ fn the_station_demo_stops_on_ctrl_c() {
     let out = dir.path().join("demo");
     let mut child = Child(
         Command::new(env!("CARGO_BIN_EXE_conformd"))
-            .args(["demo", "station", "--keep-running", "--out"])
+            .args([
+                "demo",
+                "station",
+                "--captures",
+                "3",
+                "--keep-running",
+                "--out",
+            ])
             .arg(&out)
             .stdin(std::process::Stdio::piped())
             .stdout(std::process::Stdio::piped())

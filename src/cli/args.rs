@@ -265,6 +265,10 @@ pub struct DemoArgs {
     /// station demo: keep the daemon and its status page running until Ctrl-C
     #[arg(long)]
     pub keep_running: bool,
+    /// station demo: how many of the twelve postures to capture (a quicker look; the
+    /// posture model needs at least 3)
+    #[arg(long, default_value_t = 12, value_parser = clap::value_parser!(u8).range(3..=12))]
+    pub captures: u8,
 }
 
 #[derive(clap::Args)]

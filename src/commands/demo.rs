@@ -1,8 +1,8 @@
 //! The station demo (`make demo`): no hardware, the real service. A virtual rig renders a
-//! pig in twelve postures; the daemon runs on replay cameras and a simulated trigger box
-//! over a pseudo-terminal; twelve RFID reads fire twelve captures through the box; every
-//! capture is reconstructed, conformed and scored; the posture model is built; a table
-//! and the mode sheet come out.
+//! pig in twelve postures (or the first few of them); the daemon runs on replay cameras
+//! and a simulated trigger box over a pseudo-terminal; one RFID read per posture fires a
+//! capture through the box; every capture is reconstructed, conformed and scored; the
+//! posture model is built; a table and the mode sheet come out.
 
 use super::*;
 use crate::daemon::{Handle, Shared, journal::State};
@@ -130,12 +130,13 @@ fn wait(
     Ok(())
 }
 
-/// Runs the station demo in `out` (see the module comment): `progress(stage, done,
-/// total)` as it goes, `show` with the figures once everything is processed, then the
+/// Runs the station demo in `out` (see the module comment) on the first `captures` of
+/// the twelve postures: `progress(stage, done, total)` as it goes, `show` with the figures once everything is processed, then the
 /// daemon keeps serving its status page while `keep_running` returns true and no
 /// Ctrl-C or SIGTERM has stopped it.
 pub fn demo_station(
     out: &Path,
+    captures: usize,
     progress: &mut dyn FnMut(&str, u64, u64),
     show: &mut dyn FnMut(&StationDemo),
     keep_running: &mut dyn FnMut() -> bool,
@@ -162,9 +163,16 @@ pub fn demo_station(
     if sim.exists() {
         std::fs::remove_dir_all(&sim).map_err(io(&sim))?;
     }
+    if !(3..=POSTURES.len()).contains(&captures) {
+        return Err(CommandError::Usage(format!(
+            "demo: {captures} captures asked for; the demo has 3 to {} (the posture model needs 3)",
+            POSTURES.len()
+        )));
+    }
+    let postures = &POSTURES[..captures];
     let mut sets = Vec::new();
-    for (i, pose) in POSTURES.iter().enumerate() {
-        progress("render", i as u64, POSTURES.len() as u64);
+    for (i, pose) in postures.iter().enumerate() {
+        progress("render", i as u64, postures.len() as u64);
         sets.extend(simulate(&rig, "pig", pose, 1, 2.0, &sim)?);
     }
     let seconds_render = t.elapsed().as_secs_f64();
@@ -185,7 +193,7 @@ pub fn demo_station(
     let t = Instant::now();
     let daemon = Handle::spawn(cfg, None)?;
     let shared = daemon.shared.clone();
-    fire_and_process(&daemon, &trigger, progress)?;
+    fire_and_process(&daemon, &trigger, sets.len() as u64, progress)?;
     let seconds_station = t.elapsed().as_secs_f64();
 
     let model_path = shared.cfg.model.file.clone().expect("set above");
@@ -248,11 +256,12 @@ fn demo_station_file(sets: &[PathBuf], device: &Path, port: u16) -> String {
     )
 }
 
-/// Each posture fired through the box (an RFID read), then every capture waited for
-/// and the posture model rebuilt.
+/// `n` captures fired through the box (an RFID read each), then every capture waited
+/// for and the posture model rebuilt.
 fn fire_and_process(
     daemon: &Handle,
     trigger: &crate::synth::trigger_box::SimulatedBox,
+    n: u64,
     progress: &mut dyn FnMut(&str, u64, u64),
 ) -> Result<(), CommandError> {
     let shared = daemon.shared.clone();
@@ -263,7 +272,6 @@ fn fire_and_process(
             .map(|r| r.trigger_connected)
             .unwrap_or(false)
     })?;
-    let n = POSTURES.len() as u64;
     for i in 0..n {
         trigger.rfid(&format!("pig-{:02}", i + 1));
         wait(daemon, "a capture", Duration::from_secs(60), || {

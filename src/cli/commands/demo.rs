@@ -10,13 +10,17 @@ use std::path::PathBuf;
 
 pub fn run(a: DemoArgs) -> Result<(), commands::CommandError> {
     match a.which {
-        DemoKind::Station => station(a.out, a.keep_running),
+        DemoKind::Station => station(a.out, a.keep_running, a.captures.into()),
         DemoKind::Paper => paper(a.out),
     }
 }
 
-fn station(out: PathBuf, keep_running: bool) -> Result<(), commands::CommandError> {
-    let pb = progress::iterations(12, "render");
+fn station(
+    out: PathBuf,
+    keep_running: bool,
+    captures: usize,
+) -> Result<(), commands::CommandError> {
+    let pb = progress::iterations(captures, "render");
     pb.set_style(
         indicatif::ProgressStyle::with_template("{prefix} [{bar:30}] {pos}/{len} captures")
             .expect("valid template")
@@ -32,6 +36,7 @@ fn station(out: PathBuf, keep_running: bool) -> Result<(), commands::CommandErro
     }
     let d = commands::demo_station(
         &out,
+        captures,
         &mut |stage, done, total| {
             pb.set_prefix(stage.to_string());
             pb.set_length(total);
