@@ -59,6 +59,16 @@ fn landmark_pairs(
         .unzip()
 }
 
+/// The subject stood on the floor (z = 0), as on a station's: its lowest point on it.
+fn grounded(x: &mut [V3]) {
+    let low = x.iter().map(|p| p.z).fold(f64::INFINITY, f64::min);
+    if low.is_finite() {
+        for p in x {
+            p.z -= low;
+        }
+    }
+}
+
 fn turned(x: &mut [V3], degrees: f64) {
     let c = x.iter().sum::<V3>() / x.len().max(1) as f64;
     let rot = nalgebra::Rotation3::from_axis_angle(&V3::z_axis(), degrees.to_radians());
@@ -126,6 +136,7 @@ pub fn subjects(part: Part, count: usize, names: &[&str]) -> Result<Vec<Subject>
                     template::subject(&other, kind, &shape, pose).map_err(|e| e.to_string())?;
                 let heading = rng.random_range(-15.0..15.0);
                 turned(&mut subject.vertices, heading);
+                grounded(&mut subject.vertices);
                 postures.push(scanned(
                     &subject,
                     &named,
@@ -171,6 +182,7 @@ pub fn subjects(part: Part, count: usize, names: &[&str]) -> Result<Vec<Subject>
             for (i, mut x) in poses.into_iter().enumerate() {
                 let heading = rng.random_range(-15.0..15.0);
                 turned(&mut x, heading);
+                grounded(&mut x);
                 let rot = nalgebra::Rotation3::from_axis_angle(&V3::z_axis(), heading.to_radians());
                 let posed = Mesh::new(x, subject.triangles.clone());
                 postures.push(scanned(
