@@ -640,10 +640,10 @@ impl Resolved {
                         let height = top.dot(&self.up) - self.floor;
                         (height, 1, vec![vec![top, top - self.up * height]], false)
                     }
-                    // on the subject's own lowest point, its joints straightened
+                    // on the floor under the subject's own feet, its joints straightened
                     Some(ps) => {
                         let top = length_place(f);
-                        let height = top.dot(&ps.up) - ps.floor;
+                        let height = top.dot(&ps.up) - ps.floor(self.floor);
                         (height, 1, vec![vec![top, top - ps.up * height]], false)
                     }
                 },

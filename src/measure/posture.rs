@@ -4,7 +4,7 @@
 //! and each measurement's definition is moved into the subject's posture: a girth's
 //! plane goes where the bone carries it, a length's points are taken back through the
 //! joints' rotations only (the subject's own bone lengths kept), heights stand on the
-//! subject's own lowest point. Fitting hundreds of vertices per part averages out the
+//! floor where the subject's own feet are taken by the parts. Fitting hundreds of vertices per part averages out the
 //! vertices a landmark-free fit slid, where undoing the template's skinning moved them.
 
 use crate::mesh::{Mesh, V3};
@@ -32,8 +32,14 @@ pub struct Posed<'a> {
     normalised: Vec<V3>,
     /// the template's up as the root bone carries it
     pub up: V3,
-    /// the lowest normalised point along `up` (a robust minimum)
-    pub floor: f64,
+    /// the vertices the subject stands on: (height in the result, how far taking the
+    /// turns out moves their bone's joint along `up`); see [`Posed::floor`]
+    contact: Vec<(f64, f64)>,
+    /// the subject's height in the result (robust: 0.2% to 99.8% quantile)
+    extent: f64,
+    /// the lowest normalised point along `up` (its 0.2% quantile: a few stray vertices
+    /// under the soles do not set it)
+    lowest: f64,
 }
 
 /// How many vertices' worth of evidence a bone needs to turn unlike its parent.
@@ -118,18 +124,57 @@ impl Articulation {
             })
             .collect();
         let up = r_root * self.up;
+        // each contact vertex moves as its bone's joint does (the ankle, not the sole: a
+        // foot's own turn, fitted on unseen filled soles, does not move the floor)
+        let joint_shift: Vec<f64> = (0..nb)
+            .map(|b| {
+                let raw = bones[b].apply(&self.joints[b]);
+                let (m, c) = affine[b];
+                (m * raw + c).dot(&up) - raw.dot(&self.up)
+            })
+            .collect();
+        let dominant = |v: usize| {
+            self.weights[v]
+                .iter()
+                .max_by(|a, b| a.1.total_cmp(&b.1))
+                .map_or(root, |w| w.0 as usize)
+        };
+        let (contact, extent) = contact(x, &self.up);
+        let contact = contact
+            .into_iter()
+            .map(|(v, h)| (h, joint_shift[dominant(v)]))
+            .collect();
         let mut heights: Vec<f64> = normalised.iter().map(|q| q.dot(&up)).collect();
         heights.sort_by(f64::total_cmp);
-        // the 0.2% quantile: a few stray vertices under the soles do not set the floor
-        let floor = heights[(heights.len() / 500).min(heights.len() - 1)];
+        let lowest = heights[(heights.len() / 500).min(heights.len() - 1)];
         Ok(Posed {
             art: self,
             bones,
             normalised,
             up,
-            floor,
+            contact,
+            extent,
+            lowest,
         })
     }
+}
+
+/// The vertices the subject stands on, with their heights along `up` (those within 1% of
+/// its height above its lowest point), and its height: robust quantiles, 0.2% and 99.8%,
+/// so a few stray vertices set neither.
+fn contact(x: &[V3], up: &V3) -> (Vec<(usize, f64)>, f64) {
+    let heights: Vec<f64> = x.iter().map(|q| q.dot(up)).collect();
+    let mut sorted = heights.clone();
+    sorted.sort_by(f64::total_cmp);
+    let at = |q: f64| sorted[((sorted.len() as f64 * q) as usize).min(sorted.len() - 1)];
+    let extent = at(0.998) - at(0.002);
+    let band = at(0.002) + 0.01 * extent;
+    let contact = heights
+        .into_iter()
+        .enumerate()
+        .filter(|&(_, h)| h <= band)
+        .collect();
+    (contact, extent)
 }
 
 /// One bone's fitted transform `x -> linear x + translation` and the rotation in it.
@@ -342,6 +387,33 @@ impl Posed<'_> {
         }
     }
 
+    /// The floor under the subject with the joints' rotations taken out, along
+    /// [`Posed::up`], for a frame whose floor is at `frame_floor`. Soles fitted to data
+    /// stand on the frame's floor, and the floor is the lowest normalised point (the
+    /// soles with the feet's turns taken out). Soles below the frame's floor (the median
+    /// of those the subject stands on, by more than 0.5% of its height) were filled, not
+    /// seen: no camera sees through a floor. Their depth varies from fit to fit (2.7-4.0
+    /// cm from stance to stance on the booth's people), and so does the feet's own turn
+    /// fitted on them; the floor is then where the feet stand moved as their joints move
+    /// (the ankle, not the sole), the filled soles raised to the frame's floor.
+    pub fn floor(&self, frame_floor: f64) -> f64 {
+        let median = |mut v: Vec<f64>| {
+            v.sort_by(f64::total_cmp);
+            v.get(v.len() / 2).copied()
+        };
+        let sole = median(self.contact.iter().map(|c| c.0).collect());
+        if !sole.is_some_and(|h| h < frame_floor - 0.005 * self.extent) {
+            return self.lowest;
+        }
+        median(
+            self.contact
+                .iter()
+                .map(|&(h, shift)| h.max(frame_floor) + shift)
+                .collect(),
+        )
+        .unwrap_or(self.lowest)
+    }
+
     /// Vertex `v` with the joints' rotations taken out.
     pub fn normalised(&self, v: u32) -> V3 {
         self.normalised[v as usize]
@@ -388,5 +460,40 @@ mod tests {
             .fold(0.0, f64::max);
         // the weak tie between parts is all that is left
         assert!(worst < 1e-5 * fig.mesh.diagonal(), "worst {worst}");
+    }
+
+    #[test]
+    fn soles_filled_below_the_floor_do_not_lower_it() {
+        // the generic body standing on z = 0, one leg swung forward at the hip; then the
+        // same with the soles sunk 3 cm into the floor (filled where no camera sees)
+        let fig = template::build(Kind::Body, 3000);
+        let pose = Pose {
+            joints: vec![("thigh_l".into(), V3::y(), -12.0)],
+            ..Default::default()
+        };
+        let mut posed = fig.mesh.clone();
+        posed.vertices = fig.pose(&pose);
+        let low = posed
+            .vertices
+            .iter()
+            .map(|p| p.z)
+            .fold(f64::INFINITY, f64::min);
+        for p in &mut posed.vertices {
+            p.z -= low;
+        }
+        let art = Articulation::from_figure(&fig, V3::z());
+        let seen = art.fit(&posed).unwrap().floor(0.0);
+        let mut sunk = posed.clone();
+        for p in &mut sunk.vertices {
+            if p.z < 0.02 {
+                p.z -= 0.03;
+            }
+        }
+        let sunk = art.fit(&sunk).unwrap();
+        let filled = sunk.floor(0.0);
+        // the fault this guards: the lowest normalised point went down with the soles
+        assert!(sunk.lowest < seen - 0.02, "lowest {}", sunk.lowest);
+        // where the soles truly stand (the frame's floor)
+        assert!(filled.abs() < 0.005, "filled soles: floor {filled}");
     }
 }
