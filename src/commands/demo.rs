@@ -131,8 +131,8 @@ fn wait(
 }
 
 /// Runs the station demo in `out` (see the module comment) on the first `captures` of
-/// the twelve postures: `progress(stage, done, total)` as it goes, `show` with the figures once everything is processed, then the
-/// daemon keeps serving its status page while `keep_running` returns true and no
+/// the twelve postures: `progress(stage, done, total)` as it goes, `show` with the
+/// figures once everything is processed, then the daemon keeps serving its status page while `keep_running` returns true and no
 /// Ctrl-C or SIGTERM has stopped it.
 pub fn demo_station(
     out: &Path,
@@ -141,6 +141,13 @@ pub fn demo_station(
     show: &mut dyn FnMut(&StationDemo),
     keep_running: &mut dyn FnMut() -> bool,
 ) -> Result<StationDemo, CommandError> {
+    // refused before anything of an earlier run is removed
+    if !(3..=POSTURES.len()).contains(&captures) {
+        return Err(CommandError::Usage(format!(
+            "demo: {captures} captures asked for; the demo has 3 to {} (the posture model needs 3)",
+            POSTURES.len()
+        )));
+    }
     let out = std::path::absolute(out).map_err(|source| CommandError::Io {
         path: out.display().to_string(),
         source,
@@ -162,12 +169,6 @@ pub fn demo_station(
     let sim = out.join("sim");
     if sim.exists() {
         std::fs::remove_dir_all(&sim).map_err(io(&sim))?;
-    }
-    if !(3..=POSTURES.len()).contains(&captures) {
-        return Err(CommandError::Usage(format!(
-            "demo: {captures} captures asked for; the demo has 3 to {} (the posture model needs 3)",
-            POSTURES.len()
-        )));
     }
     let postures = &POSTURES[..captures];
     let mut sets = Vec::new();

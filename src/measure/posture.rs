@@ -4,8 +4,8 @@
 //! and each measurement's definition is moved into the subject's posture: a girth's
 //! plane goes where the bone carries it, a length's points are taken back through the
 //! joints' rotations only (the subject's own bone lengths kept), heights stand on the
-//! floor where the subject's own feet are taken by the parts. Fitting hundreds of vertices per part averages out the
-//! vertices a landmark-free fit slid, where undoing the template's skinning moved them.
+//! floor under the subject's own feet taken back by the parts. Fitting hundreds of
+//! vertices per part averages out the vertices a landmark-free fit slid, where undoing the template's skinning moved them.
 
 use crate::mesh::{Mesh, V3};
 use crate::template::figure::Figure;
@@ -35,6 +35,8 @@ pub struct Posed<'a> {
     /// the vertices the subject stands on: (height in the result, how far taking the
     /// turns out moves their bone's joint along `up`); see [`Posed::floor`]
     contact: Vec<(f64, f64)>,
+    /// the median height in the result of the vertices it stands on
+    sole: f64,
     /// the subject's height in the result (robust: 0.2% to 99.8% quantile)
     extent: f64,
     /// the lowest normalised point along `up` (its 0.2% quantile: a few stray vertices
@@ -140,10 +142,11 @@ impl Articulation {
                 .map_or(root, |w| w.0 as usize)
         };
         let (contact, extent) = contact(x, &self.up);
-        let contact = contact
+        let contact: Vec<(f64, f64)> = contact
             .into_iter()
             .map(|(v, h)| (h, joint_shift[dominant(v)]))
             .collect();
+        let sole = median(contact.iter().map(|c| c.0).collect()).unwrap_or(f64::INFINITY);
         let mut heights: Vec<f64> = normalised.iter().map(|q| q.dot(&up)).collect();
         heights.sort_by(f64::total_cmp);
         let lowest = heights[(heights.len() / 500).min(heights.len() - 1)];
@@ -153,10 +156,16 @@ impl Articulation {
             normalised,
             up,
             contact,
+            sole,
             extent,
             lowest,
         })
     }
+}
+
+fn median(mut v: Vec<f64>) -> Option<f64> {
+    v.sort_by(f64::total_cmp);
+    v.get(v.len() / 2).copied()
 }
 
 /// The vertices the subject stands on, with their heights along `up` (those within 1% of
@@ -397,12 +406,7 @@ impl Posed<'_> {
     /// fitted on them; the floor is then where the feet stand moved as their joints move
     /// (the ankle, not the sole), the filled soles raised to the frame's floor.
     pub fn floor(&self, frame_floor: f64) -> f64 {
-        let median = |mut v: Vec<f64>| {
-            v.sort_by(f64::total_cmp);
-            v.get(v.len() / 2).copied()
-        };
-        let sole = median(self.contact.iter().map(|c| c.0).collect());
-        if !sole.is_some_and(|h| h < frame_floor - 0.005 * self.extent) {
+        if !(self.sole < frame_floor - 0.005 * self.extent) {
             return self.lowest;
         }
         median(
