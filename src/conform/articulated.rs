@@ -475,6 +475,8 @@ struct Problem<'a> {
     samples: Vec<usize>,
     area_w: Vec<f64>,
     scan_w: f64,
+    /// marked points: a proxy (of no area: the landmark's vertex) and where it belongs
+    marks: Vec<(usize, V3)>,
     diag: f64,
     s: ArticulatedSettings,
 }
@@ -507,16 +509,22 @@ impl Problem<'_> {
             let sigma = diag * (s.robust.0 + (s.robust.1 - s.robust.0) * t);
             let (x, n) = self.prig.pose(st, true);
             let centre = x.iter().sum::<V3>() / x.len() as f64;
-            let rows = self.rows(&x, &n, reach, sigma, targets);
-            if rows.len() < np {
-                break;
-            }
-            let cols = self.jacobian(params, &moved_by, st, &x, &centre);
             let p2p = if targets.is_some() {
                 1.0
             } else {
                 s.point_to_point
             };
+            let mut rows = self.rows(&x, &n, reach, sigma, targets);
+            // a mark's row is point to point only (no normal), at the same weight in
+            // either phase
+            let mark_w = LANDMARK_ROW_WEIGHT * self.area_w.iter().sum::<f64>()
+                / self.marks.len().max(1) as f64
+                / p2p;
+            rows.extend(self.marks.iter().map(|&(i, t)| (i, t, V3::zeros(), mark_w)));
+            if rows.len() < np {
+                break;
+            }
+            let cols = self.jacobian(params, &moved_by, st, &x, &centre);
             let (mut jtj, mut jtr) = normal_equations(np, &x, &rows, &cols, p2p, diag);
             let norm = rows.iter().map(|r| r.3).sum::<f64>();
             self.add_priors(params, st, norm, &mut jtj, &mut jtr);
@@ -926,6 +934,10 @@ impl FitRig {
 /// Steps fitting the rig to a guide.
 const GUIDE_ITERATIONS: usize = 15;
 
+/// The marked points' rows together weigh this share of the proxies' (area) rows: a
+/// mark places its part, the data the rest.
+const LANDMARK_ROW_WEIGHT: f64 = 1.0;
+
 /// Distances past this share of the diagonal cost the same in the chain search.
 const CHAIN_SEARCH_CAP: f64 = 0.05;
 /// A chain root is a bone turning at least this far below one that turns less.
@@ -938,16 +950,23 @@ const CHAIN_SEARCH_GAIN: f64 = 0.02;
 /// Gauss-Newton, then each limb chain searched, then Gauss-Newton again. With `guide`
 /// (every template vertex placed in a guessed posture, e.g. by the limb search) the rig
 /// is first fitted to the guide, and the scan fit starts from that pose.
+///
+/// `marks` (template vertex, where it belongs: the operator's landmarks) hold their
+/// vertices to their places in every step, and the limb chains are not searched (the
+/// marks say where the limbs are).
 pub fn fit(
     template: &Mesh,
     fit_rig: &FitRig,
     surface: &ScanSurface,
     start: &Similarity,
     guide: Option<&[V3]>,
+    marks: &[(usize, V3)],
     s: &ArticulatedSettings,
 ) -> Articulated {
     let (base_shapes, rig) = (fit_rig.own_shapes, &fit_rig.rig);
-    let px = proxies(template, s.proxies);
+    let mut px = proxies(template, s.proxies);
+    let first_mark = px.len();
+    px.extend(marks.iter().map(|&(vertex, _)| Proxy { vertex, area: 0.0 }));
     let samples = scan_samples(surface, s);
     let problem = Problem {
         rig,
@@ -961,7 +980,12 @@ pub fn fit(
         surface,
         base_shapes,
         area_w: px.iter().map(|p| p.area).collect(),
-        scan_w: s.scan_weight * px.len() as f64 / samples.len().max(1) as f64,
+        scan_w: s.scan_weight * first_mark as f64 / samples.len().max(1) as f64,
+        marks: marks
+            .iter()
+            .enumerate()
+            .map(|(k, &(_, t))| (first_mark + k, t))
+            .collect(),
         samples,
         diag: surface.diagonal,
         s: *s,
@@ -982,7 +1006,7 @@ pub fn fit(
     }
     let first = s.iterations / 2;
     problem.gauss_newton(&mut st, first, (0.0, 0.5), None, base_shapes);
-    if s.chain_search {
+    if s.chain_search && marks.is_empty() {
         problem.chain_search(&mut st);
     }
     problem.gauss_newton(
@@ -1051,6 +1075,7 @@ mod tests {
             &surface,
             &start,
             None,
+            &[],
             &settings,
         );
         let diag = scan.diagonal();
@@ -1106,6 +1131,7 @@ mod tests {
                 &surface,
                 &Similarity::default(),
                 None,
+                &[],
                 s,
             );
             let err = got

@@ -478,6 +478,10 @@ pub enum GlobalReport {
     LandmarkRbf {
         pairs: Vec<String>,
         unpaired: Vec<String>,
+        /// the rig's fit with the marks held, when the template has a rig (its own or
+        /// an automatic one)
+        #[serde(skip_serializing_if = "Option::is_none")]
+        articulated: Option<articulated::ArticulatedReport>,
     },
     Automatic(align::AlignReport),
 }
@@ -1144,13 +1148,17 @@ fn global_mapping(
     times: &mut StageTimes,
 ) -> Result<(Vec<Hypothesis>, GlobalReport), ConformError> {
     Ok(match pairs {
-        Some(p) => (
-            vec![rbf_hypothesis(template, p, opts.rbf_smoothing)?],
-            GlobalReport::LandmarkRbf {
-                pairs: p.names.clone(),
-                unpaired: p.unpaired.clone(),
-            },
-        ),
+        Some(p) => {
+            let (h, articulated) = landmark_hypothesis(template, rig, surface, p, opts, times)?;
+            (
+                vec![h],
+                GlobalReport::LandmarkRbf {
+                    pairs: p.names.clone(),
+                    unpaired: p.unpaired.clone(),
+                    articulated,
+                },
+            )
+        }
         None => {
             let (h, rep) = automatic_hypotheses(template, rig, surface, opts, times);
             (h, GlobalReport::Automatic(rep))
@@ -1227,6 +1235,7 @@ fn automatic_hypotheses(
                 surface,
                 &guess.sim,
                 Some(&guess.x),
+                &[],
                 &settings,
             )
         })
@@ -1323,6 +1332,68 @@ fn rbf_hypothesis(template: &Mesh, p: &Pairs, smoothing: f64) -> Result<Hypothes
         sim,
         turns: Vec::new(),
     })
+}
+
+/// With landmarks: the template mapped by the landmark RBF; with a rig (the template's
+/// own, else an automatic one; default method), the rig then fitted to the scan with
+/// the marks held (the RBF's placing as its guide), and what the marks still miss taken
+/// up by an RBF of their residuals. The landmark RBF alone bends the template's space
+/// as a whole: arms raised from a T-pose drag the shoulders and the head with them.
+fn landmark_hypothesis(
+    template: &Mesh,
+    rig: Option<&TemplateRig>,
+    surface: &ScanSurface,
+    p: &Pairs,
+    opts: &ConformOptions,
+    times: &mut StageTimes,
+) -> Result<(Hypothesis, Option<articulated::ArticulatedReport>), ConformError> {
+    let rbf_start = rbf_hypothesis(template, p, opts.rbf_smoothing)?;
+    if opts.method != Method::Default {
+        return Ok((rbf_start, None));
+    }
+    let t = Instant::now();
+    let automatic;
+    let rig = match rig {
+        Some(r) => r,
+        None => {
+            automatic = automatic_rig(template, opts);
+            match automatic.as_ref() {
+                Some(r) => r,
+                None => return Ok((rbf_start, None)),
+            }
+        }
+    };
+    let settings = articulated::ArticulatedSettings::default();
+    let fit_rig = articulated::FitRig::new(rig, template, &settings);
+    let marks: Vec<(usize, V3)> = p
+        .vertex
+        .iter()
+        .zip(&p.target)
+        .map(|(&v, &t)| (v as usize, t))
+        .collect();
+    let f = articulated::fit(
+        template,
+        &fit_rig,
+        surface,
+        &rbf_start.sim,
+        Some(&rbf_start.x),
+        &marks,
+        &settings,
+    );
+    let src: Vec<V3> = p.vertex.iter().map(|&i| f.vertices[i as usize]).collect();
+    let map = rbf::fit(&p.names, &src, &p.target, opts.rbf_smoothing)?;
+    let x: Vec<V3> = f.vertices.par_iter().map(|v| map.apply(v)).collect();
+    let sim = fit_similarity(&template.vertices, &x, None, true);
+    let report = articulated::ArticulatedReport::new(&fit_rig, std::slice::from_ref(&f));
+    times.rig = t.elapsed().as_secs_f64();
+    Ok((
+        Hypothesis {
+            x,
+            sim,
+            turns: Vec::new(),
+        },
+        Some(report),
+    ))
 }
 
 /// One hypothesis carried through the elastic fit, with its score (lower is better).
