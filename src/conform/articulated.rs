@@ -1,9 +1,10 @@
-//! The articulated, shaped fit of a rigged template to a scan, without landmarks: a
-//! global similarity, each joint's turn (within its limit) and the shape factors, fitted
-//! by damped Gauss-Newton on a proxy of the template (vertices spread evenly by area),
-//! with point-to-plane data both ways (template proxies onto the scan; scan samples onto
-//! the proxies, which pulls a limb into data nothing covers), a robust loss and a prior
-//! towards the rest pose. What the rig cannot take up is left to the elastic fit.
+//! The articulated, shaped fit of a rigged template to a scan, without landmarks or
+//! with them held (`marks`): a global similarity, each joint's turn (within its limit)
+//! and the shape factors, fitted by damped Gauss-Newton on a proxy of the template
+//! (vertices spread evenly by area), with point-to-plane data both ways (template
+//! proxies onto the scan; scan samples onto the proxies, which pulls a limb into data
+//! nothing covers), a robust loss and a prior towards the rest pose. What the rig
+//! cannot take up is left to the elastic fit.
 
 use super::correspond::ScanSurface;
 use super::limbs::sphere_directions;

@@ -1380,12 +1380,18 @@ fn landmark_hypothesis(
         &marks,
         &settings,
     );
-    let src: Vec<V3> = p.vertex.iter().map(|&i| f.vertices[i as usize]).collect();
-    let map = rbf::fit(&p.names, &src, &p.target, opts.rbf_smoothing)?;
-    let x: Vec<V3> = f.vertices.par_iter().map(|v| map.apply(v)).collect();
-    let sim = fit_similarity(&template.vertices, &x, None, true);
     let report = articulated::ArticulatedReport::new(&fit_rig, std::slice::from_ref(&f));
     times.rig = t.elapsed().as_secs_f64();
+    let src: Vec<V3> = p.vertex.iter().map(|&i| f.vertices[i as usize]).collect();
+    // the marks' posed vertices fall where the RBF cannot interpolate (two on one
+    // place): the RBF's own placing, which the same marks allowed, goes on instead
+    let Ok(map) = rbf::fit(&p.names, &src, &p.target, opts.rbf_smoothing) else {
+        return Ok((rbf_start, Some(report)));
+    };
+    let x: Vec<V3> = f.vertices.par_iter().map(|v| map.apply(v)).collect();
+    // the springs' frame as the RBF route's (the rig fit's own placement: a better
+    // mean, more folds; docs/experiments.md)
+    let sim = fit_similarity(&template.vertices, &x, None, true);
     Ok((
         Hypothesis {
             x,
