@@ -132,8 +132,8 @@ fn wait(
 
 /// Runs the station demo in `out` (see the module comment) on the first `captures` of
 /// the twelve postures: `progress(stage, done, total)` as it goes, `show` with the
-/// figures once everything is processed, then the daemon keeps serving its status page while `keep_running` returns true and no
-/// Ctrl-C or SIGTERM has stopped it.
+/// figures once everything is processed, then the daemon keeps serving its status page
+/// while `keep_running` returns true and no Ctrl-C or SIGTERM has stopped it.
 pub fn demo_station(
     out: &Path,
     captures: usize,

@@ -478,6 +478,8 @@ struct Problem<'a> {
     scan_w: f64,
     /// marked points: a proxy (of no area: the landmark's vertex) and where it belongs
     marks: Vec<(usize, V3)>,
+    /// each mark row's weight at point-to-point weight 1
+    mark_w: f64,
     diag: f64,
     s: ArticulatedSettings,
 }
@@ -518,9 +520,7 @@ impl Problem<'_> {
             let mut rows = self.rows(&x, &n, reach, sigma, targets);
             // a mark's row is point to point only (no normal), at the same weight in
             // either phase
-            let mark_w = LANDMARK_ROW_WEIGHT * self.area_w.iter().sum::<f64>()
-                / self.marks.len().max(1) as f64
-                / p2p;
+            let mark_w = self.mark_w / p2p;
             rows.extend(self.marks.iter().map(|&(i, t)| (i, t, V3::zeros(), mark_w)));
             if rows.len() < np {
                 break;
@@ -980,6 +980,8 @@ pub fn fit(
         },
         surface,
         base_shapes,
+        mark_w: LANDMARK_ROW_WEIGHT * px.iter().map(|p| p.area).sum::<f64>()
+            / marks.len().max(1) as f64,
         area_w: px.iter().map(|p| p.area).collect(),
         scan_w: s.scan_weight * first_mark as f64 / samples.len().max(1) as f64,
         marks: marks

@@ -1210,17 +1210,10 @@ fn automatic_hypotheses(
     let t = Instant::now();
     // a template without a rig (a user's own mesh) gets one from its limbs (a station
     // finds it once, at start-up)
-    let automatic;
-    let rig = match rig {
-        Some(r) => Some(r),
-        None => {
-            automatic = automatic_rig(template, opts);
-            automatic.as_ref()
-        }
-    };
-    let Some(rig) = rig.filter(|_| default_method) else {
+    let Some(rig) = rig_or_automatic(rig, template, opts) else {
         return (h, rep);
     };
+    let rig = rig.as_ref();
     // the rig fitted to the limb search's result first, then to the scan: from the rest
     // pose instead it ended the same on six of eight generic cases and worse on the large
     // postures (a leg left on its neighbour), and fitting both cost twice the time
@@ -1270,6 +1263,22 @@ fn automatic_hypotheses(
         turns: guess.turns,
     }];
     (h, rep)
+}
+
+/// The rig the default method fits: the template's own, else an automatic one
+/// ([`automatic_rig`]); `None` for the paper's method or when none can be found.
+fn rig_or_automatic<'a>(
+    rig: Option<&'a TemplateRig>,
+    template: &Mesh,
+    opts: &ConformOptions,
+) -> Option<std::borrow::Cow<'a, TemplateRig>> {
+    if opts.method != Method::Default {
+        return None;
+    }
+    match rig {
+        Some(r) => Some(std::borrow::Cow::Borrowed(r)),
+        None => automatic_rig(template, opts).map(std::borrow::Cow::Owned),
+    }
 }
 
 /// The rig a template without one is fitted with when `opts` ask for it
@@ -1348,21 +1357,11 @@ fn landmark_hypothesis(
     times: &mut StageTimes,
 ) -> Result<(Hypothesis, Option<articulated::ArticulatedReport>), ConformError> {
     let rbf_start = rbf_hypothesis(template, p, opts.rbf_smoothing)?;
-    if opts.method != Method::Default {
-        return Ok((rbf_start, None));
-    }
     let t = Instant::now();
-    let automatic;
-    let rig = match rig {
-        Some(r) => r,
-        None => {
-            automatic = automatic_rig(template, opts);
-            match automatic.as_ref() {
-                Some(r) => r,
-                None => return Ok((rbf_start, None)),
-            }
-        }
+    let Some(rig) = rig_or_automatic(rig, template, opts) else {
+        return Ok((rbf_start, None));
     };
+    let rig = rig.as_ref();
     let settings = articulated::ArticulatedSettings::default();
     let fit_rig = articulated::FitRig::new(rig, template, &settings);
     let marks: Vec<(usize, V3)> = p

@@ -5,7 +5,8 @@
 //! plane goes where the bone carries it, a length's points are taken back through the
 //! joints' rotations only (the subject's own bone lengths kept), heights stand on the
 //! floor under the subject's own feet taken back by the parts. Fitting hundreds of
-//! vertices per part averages out the vertices a landmark-free fit slid, where undoing the template's skinning moved them.
+//! vertices per part averages out the vertices a landmark-free fit slid, where undoing
+//! the template's skinning moved them.
 
 use crate::mesh::{Mesh, V3};
 use crate::template::figure::Figure;
@@ -149,7 +150,7 @@ impl Articulation {
         let sole = median(contact.iter().map(|c| c.0).collect()).unwrap_or(f64::INFINITY);
         let mut heights: Vec<f64> = normalised.iter().map(|q| q.dot(&up)).collect();
         heights.sort_by(f64::total_cmp);
-        let lowest = heights[(heights.len() / 500).min(heights.len() - 1)];
+        let lowest = quantile(&heights, 0.002);
         Ok(Posed {
             art: self,
             bones,
@@ -161,6 +162,11 @@ impl Articulation {
             lowest,
         })
     }
+}
+
+/// The `q` quantile of `sorted` (not empty).
+fn quantile(sorted: &[f64], q: f64) -> f64 {
+    sorted[((sorted.len() as f64 * q) as usize).min(sorted.len() - 1)]
 }
 
 fn median(mut v: Vec<f64>) -> Option<f64> {
@@ -175,7 +181,7 @@ fn contact(x: &[V3], up: &V3) -> (Vec<(usize, f64)>, f64) {
     let heights: Vec<f64> = x.iter().map(|q| q.dot(up)).collect();
     let mut sorted = heights.clone();
     sorted.sort_by(f64::total_cmp);
-    let at = |q: f64| sorted[((sorted.len() as f64 * q) as usize).min(sorted.len() - 1)];
+    let at = |q: f64| quantile(&sorted, q);
     let extent = at(0.998) - at(0.002);
     let band = at(0.002) + 0.01 * extent;
     let contact = heights
