@@ -599,15 +599,16 @@ fn the_limb_search_turns_swung_limbs_toward_the_scan() {
 /// (the template's rig first, each bone's length and girth fitted with it): (case, mean
 /// semantic landmark error %, limb ends on another limb). Bounds about 1.25x the figures
 /// measured (2026-12-06, with the bone fields: 3.97, 6.87, 3.37, 2.76, 2.74, 4.60, 1.76,
-/// 1.59), kept at the earlier bound where that is lower (koala both, cow posed: 4.00,
-/// 6.70, 2.65 before the bone fields); far from the aim (1.5%, no limb swapped), and
+/// 1.59; the man in the large posture 2.36 since the bent-arms start, 2026-12-07), kept
+/// at the earlier bound where that is lower (koala both, cow posed: 4.00, 6.70, 2.65
+/// before the bone fields); far from the aim (1.5%, no limb swapped), and
 /// the README says so. A limb end on another limb is a wrong result: the bound is 0
 /// everywhere, and a case known to have one is listed in `KNOWN_ON_ANOTHER_LIMB`.
 const GENERIC_BOUNDS: &[(&str, f64, usize)] = &[
     ("generic pig onto koala, posed", 4.94, 0),
     ("generic pig onto koala, large posture", 8.44, 0),
     ("generic body onto human, posed", 4.21, 0),
-    ("generic body onto human, large posture", 3.45, 0),
+    ("generic body onto human, large posture", 2.95, 0),
     ("generic pig onto cow, posed", 3.29, 0),
     ("generic pig onto cow, large posture", 5.75, 0),
     ("generic body onto woman, posed", 2.20, 0),
@@ -687,15 +688,19 @@ fn known_failure_the_man_posed_has_no_limb_end_on_another_limb() {
 /// The generic body onto people in a booth's stances (`semantic::booth_cases`: the arms
 /// turned at the shoulders, which the generic set never does), the booth's front known as
 /// a booth knows it: (case, mean semantic error %). Bounds 1.25x the figures measured
-/// (2026-12-07: 1.642, 1.533, 1.191, 1.514; the same with the up axis alone), no limb
-/// end on another limb. The hands at the belly are a known failure
-/// (`known_failure_hands_at_the_belly_*`).
+/// (2026-12-07: 1.642, 1.533, 1.191, 1.514; the man's hands at the belly 1.433 since the
+/// bent-arms start; the same with the up axis alone), no limb end on another limb. The
+/// woman's hands at the belly are a known failure (`known_failure_hands_at_the_belly_*`).
 const BOOTH_BOUNDS: &[(&str, f64)] = &[
+    ("generic body onto human, hands at the belly", 1.79),
     ("generic body onto human, arms forward", 2.05),
     ("generic body onto human, arms raised", 1.92),
     ("generic body onto woman, arms forward", 1.49),
     ("generic body onto woman, arms raised", 1.89),
 ];
+
+/// The booth's case known to fit wrong (`known_failure_hands_at_the_belly_*`).
+const BOOTH_KNOWN_FAILURE: &str = "generic body onto woman, hands at the belly";
 
 /// The booth's cases of a part whose names `want`, each fitted with the front known:
 /// (case, score).
@@ -731,7 +736,7 @@ fn booth_stances_hold_per_case_with_the_front_known() {
     let mut failures = Vec::new();
     let mut seen = 0;
     for part in [devset::Part::Development, devset::Part::Validation] {
-        for (c, s) in booth_fits(part, |n| !n.contains("hands at the belly")) {
+        for (c, s) in booth_fits(part, |n| n != BOOTH_KNOWN_FAILURE) {
             let &(_, mean) = BOOTH_BOUNDS
                 .iter()
                 .find(|b| b.0 == c.name)
@@ -751,17 +756,18 @@ fn booth_stances_hold_per_case_with_the_front_known() {
     assert!(failures.is_empty(), "{failures:#?}");
 }
 
-/// The right outcome for hands held before the belly: each hand tip within 3% of the
-/// diagonal of its place. Known to fail (2026-12-07: the rig fit leaves the forearms
-/// hanging at the hips, hand tips 16-17% off, both of the man's and one of the woman's);
-/// when a change
-/// fixes it this test fails saying so, and the stance joins `BOOTH_BOUNDS`.
+/// The right outcome for the woman's hands held before the belly (validation): each hand
+/// tip within 3% of the diagonal of its place. Known to fail (2026-12-07: the rig fit
+/// leaves her left forearm hanging at the hip, its hand tip 16% off: the fit from the
+/// bent-arms start, which holds the man's, scores 0.5% worse than the fit from the limb
+/// search's arms); when a change fixes it this test fails saying so, and the case joins
+/// `BOOTH_BOUNDS`.
 #[test]
 #[should_panic(expected = "hand tips off")]
 fn known_failure_hands_at_the_belly_are_fitted_at_the_belly() {
     let mut off = Vec::new();
     for part in [devset::Part::Development, devset::Part::Validation] {
-        for (c, s) in booth_fits(part, |n| n.contains("hands at the belly")) {
+        for (c, s) in booth_fits(part, |n| n == BOOTH_KNOWN_FAILURE) {
             off.extend(
                 s.per_mark
                     .iter()

@@ -41,6 +41,10 @@ pub struct ArticulatedSettings {
     /// the second half of the iterations, held to 1 by `bone_prior`
     pub bone_fields: bool,
     pub bone_prior: f64,
+    /// a person's rig (arm, forearm and thigh bones named as the generic body's) is
+    /// also fitted from a start with the forearms bent before the body, held by the
+    /// pose prior towards it; the better by score is kept ([`bent_arms`])
+    pub bent_arms_start: bool,
 }
 
 impl Default for ArticulatedSettings {
@@ -58,6 +62,7 @@ impl Default for ArticulatedSettings {
             chain_search: true,
             bone_fields: true,
             bone_prior: 1e-5,
+            bent_arms_start: true,
         }
     }
 }
@@ -76,6 +81,8 @@ pub struct Articulated {
     pub scan_to_template: f64,
     /// share of scan samples within 2% of the diagonal of the template
     pub coverage: f64,
+    /// the fit started with the forearms bent before the body ([`bent_arms`])
+    pub bent_arms_start: bool,
 }
 
 impl Articulated {
@@ -110,6 +117,9 @@ pub struct ArticulatedReport {
     /// relative), and whether it, not the rig's fit, started the elastic fit
     pub limb_search_score: Option<f64>,
     pub kept_limb_search: bool,
+    /// the kept fit started with the forearms bent before the body, not from the limb
+    /// search's arms
+    pub bent_arms_start: bool,
 }
 
 /// Trimmed distances (both ways, summed) of two placements' fits closer than this ratio
@@ -168,6 +178,7 @@ impl ArticulatedReport {
             rig: rig.source.to_string(),
             limb_search_score: None,
             kept_limb_search: false,
+            bent_arms_start: best.is_some_and(|f| f.bent_arms_start),
         }
     }
 }
@@ -482,6 +493,9 @@ struct Problem<'a> {
     mark_w: f64,
     diag: f64,
     s: ArticulatedSettings,
+    /// the turns the pose prior holds each joint towards: the rest pose's, or the start
+    /// a fit was given ([`bent_arms`])
+    prior_turns: Vec<Rotation3<f64>>,
 }
 
 impl Problem<'_> {
@@ -534,6 +548,25 @@ impl Problem<'_> {
             };
             *st = params.apply(st, &d, &centre, self.rig);
         }
+    }
+
+    /// The fit to the scan from `st`: Gauss-Newton, each limb chain searched (when
+    /// `search`), Gauss-Newton again with every shape field free.
+    fn fit_scan(&self, mut st: State, search: bool) -> State {
+        let (s, base_shapes) = (&self.s, self.base_shapes);
+        let first = s.iterations / 2;
+        self.gauss_newton(&mut st, first, (0.0, 0.5), None, base_shapes);
+        if s.chain_search && search {
+            self.chain_search(&mut st);
+        }
+        self.gauss_newton(
+            &mut st,
+            s.iterations - first,
+            (0.5, 1.0),
+            None,
+            self.rig.shapes.len(),
+        );
+        st
     }
 
     /// One step's data rows (proxy, point, normal, weight): each proxy's nearest scan
@@ -622,8 +655,8 @@ impl Problem<'_> {
             .collect()
     }
 
-    /// The priors: each joint towards its rest turn, each factor towards 1, weighted by
-    /// the rows' total weight `norm`.
+    /// The priors: each joint towards its prior turn (the rest pose's, or a given
+    /// start's), each factor towards 1, weighted by the rows' total weight `norm`.
     fn add_priors(
         &self,
         params: &Params,
@@ -634,7 +667,7 @@ impl Problem<'_> {
     ) {
         let s = &self.s;
         for (k, &b) in params.free_bones.iter().enumerate() {
-            let v = rotation_vector(&st.pose.turns[b]);
+            let v = rotation_vector(&(st.pose.turns[b] * self.prior_turns[b].inverse()));
             for c in 0..3 {
                 let a = 7 + 3 * k + c;
                 jtj[(a, a)] += s.pose_prior * norm;
@@ -950,7 +983,9 @@ const CHAIN_SEARCH_GAIN: f64 = 0.02;
 /// Fits `rig` (of `template`) to the scan from the placement `start` and the rest pose:
 /// Gauss-Newton, then each limb chain searched, then Gauss-Newton again. With `guide`
 /// (every template vertex placed in a guessed posture, e.g. by the limb search) the rig
-/// is first fitted to the guide, and the scan fit starts from that pose.
+/// is first fitted to the guide, and the scan fit starts from that pose. A person's rig
+/// is fitted from a second start too, the forearms bent before the body ([`bent_arms`]);
+/// the start whose fit scores better is kept.
 ///
 /// `marks` (template vertex, where it belongs: the operator's landmarks) hold their
 /// vertices to their places in every step, and the limb chains are not searched (the
@@ -969,7 +1004,7 @@ pub fn fit(
     let first_mark = px.len();
     px.extend(marks.iter().map(|&(vertex, _)| Proxy { vertex, area: 0.0 }));
     let samples = scan_samples(surface, s);
-    let problem = Problem {
+    let mut problem = Problem {
         rig,
         prig: ProxyRig::new(rig, template, &px),
         params: Params {
@@ -992,6 +1027,7 @@ pub fn fit(
         samples,
         diag: surface.diagonal,
         s: *s,
+        prior_turns: RigPose::rest(rig).turns,
     };
     let mut st = State {
         placement: *start,
@@ -1007,19 +1043,26 @@ pub fn fit(
             base_shapes,
         );
     }
-    let first = s.iterations / 2;
-    problem.gauss_newton(&mut st, first, (0.0, 0.5), None, base_shapes);
-    if s.chain_search && marks.is_empty() {
-        problem.chain_search(&mut st);
+    // a second start only without marks: they say where the arms are
+    let bent = (s.bent_arms_start && marks.is_empty())
+        .then(|| bent_arms(rig, &st))
+        .flatten();
+    let rest_turns = problem.prior_turns.clone();
+    let mut best: Option<(State, bool, (f64, f64, f64))> = None;
+    for (st, from_bent) in std::iter::once((st, false)).chain(bent.map(|b| (b, true))) {
+        problem.prior_turns = if from_bent {
+            st.pose.turns.clone()
+        } else {
+            rest_turns.clone()
+        };
+        let st = problem.fit_scan(st, marks.is_empty());
+        let figures = problem.figures(&st);
+        let score = |f: &(f64, f64, f64)| f.0 + f.1;
+        if best.as_ref().is_none_or(|b| score(&figures) < score(&b.2)) {
+            best = Some((st, from_bent, figures));
+        }
     }
-    problem.gauss_newton(
-        &mut st,
-        s.iterations - first,
-        (0.5, 1.0),
-        None,
-        rig.shapes.len(),
-    );
-    let (to_scan, from_scan, coverage) = problem.figures(&st);
+    let (st, bent_arms_start, (to_scan, from_scan, coverage)) = best.expect("one start at least");
     let vertices: Vec<V3> = rig
         .pose(&template.vertices, &st.pose)
         .iter()
@@ -1032,7 +1075,46 @@ pub fn fit(
         template_to_scan: to_scan,
         scan_to_template: from_scan,
         coverage,
+        bent_arms_start,
     }
+}
+
+/// `st` with both arms hanging and the forearms bent level before the body, forward and
+/// a little inward, in the frame the rig's own bones give (left from the right arm to
+/// the left, up from the hips to the shoulders); `None` unless the rig has the generic
+/// body's `upper_arm_*`, `forearm_*` and `thigh_*` bones. A person holding the hands at
+/// the belly is otherwise fitted with the forearms hanging at the hips: the limb search
+/// cannot find them and the pose prior pulls them back to rest.
+fn bent_arms(rig: &TemplateRig, st: &State) -> Option<State> {
+    let bone = |name: &str| rig.bones.iter().position(|b| b.name == name);
+    let [ul, ur, fl, fr, tl, tr] = [
+        "upper_arm_l",
+        "upper_arm_r",
+        "forearm_l",
+        "forearm_r",
+        "thigh_l",
+        "thigh_r",
+    ]
+    .map(bone);
+    let (ul, ur, fl, fr, tl, tr) = (ul?, ur?, fl?, fr?, tl?, tr?);
+    let head = |b: usize| rig.bones[b].head;
+    let left = (head(ul) - head(ur)).try_normalize(1e-12)?;
+    let up = (head(ul) + head(ur) - head(tl) - head(tr)) / 2.0;
+    let up = (up - left * up.dot(&left)).try_normalize(1e-12)?;
+    let front = left.cross(&up);
+    let mut out = st.clone();
+    for (upper, fore, side) in [(ul, fl, left), (ur, fr, -left)] {
+        let dir = |b: usize| (rig.bones[b].tail - rig.bones[b].head).try_normalize(1e-12);
+        let upper_to = (-up + side * 0.15 + front * 0.1).normalize();
+        let fore_to = (-side * 0.5 + front * 0.87).normalize();
+        let upper_turn = Rotation3::rotation_between(&dir(upper)?, &upper_to)?;
+        // the forearm's turn is in the upper arm's frame
+        let fore_turn =
+            Rotation3::rotation_between(&dir(fore)?, &(upper_turn.inverse() * fore_to))?;
+        out.pose.turns[upper] = upper_turn;
+        out.pose.turns[fore] = fore_turn;
+    }
+    Some(out)
 }
 
 #[cfg(test)]
@@ -1175,6 +1257,59 @@ mod tests {
     }
 
     #[test]
+    fn a_person_holding_the_hands_at_the_belly_is_fitted_so() {
+        let fig = template::build(Kind::Body, 3000);
+        let rig = TemplateRig::generic(&fig, Kind::Body);
+        // the arms hanging, the forearms across the belly (more inward than the bent
+        // start's, and a little raised)
+        let bone = |n: &str| rig.bones.iter().position(|b| b.name == n).unwrap();
+        let dir = |b: usize| (rig.bones[b].tail - rig.bones[b].head).normalize();
+        let mut pose = RigPose::rest(&rig);
+        for (side, y) in [("l", 1.0), ("r", -1.0)] {
+            let (upper, fore) = (
+                bone(&format!("upper_arm_{side}")),
+                bone(&format!("forearm_{side}")),
+            );
+            let upper_turn =
+                Rotation3::rotation_between(&dir(upper), &V3::new(0.15, 0.1 * y, -1.0)).unwrap();
+            let fore_to = upper_turn.inverse() * V3::new(0.7, -0.65 * y, 0.25).normalize();
+            pose.turns[upper] = upper_turn;
+            pose.turns[fore] = Rotation3::rotation_between(&dir(fore), &fore_to).unwrap();
+        }
+        let truth = rig.pose(&fig.mesh.vertices, &pose);
+        let scan = Mesh::new(truth.clone(), fig.mesh.triangles.clone());
+        let surface = ScanSurface::new(&scan).unwrap();
+        let diag = scan.diagonal();
+        let hand_tip = fig.landmark_vertices()["hand_tip_l"] as usize;
+        let fitted = |s: &ArticulatedSettings| {
+            let got = fit(
+                &fig.mesh,
+                &FitRig::new(&rig, &fig.mesh, s),
+                &surface,
+                &Similarity::default(),
+                None,
+                &[],
+                s,
+            );
+            let hand = (got.vertices[hand_tip] - truth[hand_tip]).norm() / diag;
+            (hand, got.bent_arms_start)
+        };
+        let settings = ArticulatedSettings::default();
+        let (hand, bent) = fitted(&settings);
+        let (hand_without, _) = fitted(&ArticulatedSettings {
+            bent_arms_start: false,
+            ..settings
+        });
+        eprintln!(
+            "left hand tip {:.2}% off (from the rest pose alone {:.2}%)",
+            hand * 100.0,
+            hand_without * 100.0
+        );
+        assert!(bent, "the bent start was not kept");
+        assert!(hand < 0.01 && hand_without > 0.1, "{hand} {hand_without}");
+    }
+
+    #[test]
     fn close_placements_are_called_ambiguous() {
         let fig = template::build(Kind::Pig, 600);
         let rig = TemplateRig::generic(&fig, Kind::Pig);
@@ -1185,6 +1320,7 @@ mod tests {
             template_to_scan: to,
             scan_to_template: from,
             coverage: 0.9,
+            bent_arms_start: false,
         };
         let rig = FitRig::new(&rig, &fig.mesh, &ArticulatedSettings::default());
         let close = ArticulatedReport::new(&rig, &[at(0.010, 0.010), at(0.0105, 0.0105)]);
