@@ -1047,7 +1047,7 @@ pub fn fit(
     let bent = (s.bent_arms_start && marks.is_empty())
         .then(|| bent_arms(rig, &st))
         .flatten();
-    let rest_turns = problem.prior_turns.clone();
+    let rest_turns = RigPose::rest(rig).turns;
     let mut best: Option<(State, bool, (f64, f64, f64))> = None;
     for (st, from_bent) in std::iter::once((st, false)).chain(bent.map(|b| (b, true))) {
         problem.prior_turns = if from_bent {
@@ -1080,8 +1080,9 @@ pub fn fit(
 }
 
 /// `st` with both arms hanging and the forearms bent level before the body, forward and
-/// a little inward, in the frame the rig's own bones give (left from the right arm to
-/// the left, up from the hips to the shoulders); `None` unless the rig has the generic
+/// a little inward, in the frame the rig's own bones give at rest (left from the right
+/// arm to the left, up from the hips to the shoulders; the parents' turns in `st` kept,
+/// so a turned chest turns the arms with it); `None` unless the rig has the generic
 /// body's `upper_arm_*`, `forearm_*` and `thigh_*` bones. A person holding the hands at
 /// the belly is otherwise fitted with the forearms hanging at the hips: the limb search
 /// cannot find them and the pose prior pulls them back to rest.
