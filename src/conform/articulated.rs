@@ -1049,6 +1049,7 @@ pub fn fit(
         .flatten();
     let rest_turns = RigPose::rest(rig).turns;
     let mut best: Option<(State, bool, (f64, f64, f64))> = None;
+    let score = |f: &(f64, f64, f64)| f.0 + f.1;
     for (st, from_bent) in std::iter::once((st, false)).chain(bent.map(|b| (b, true))) {
         problem.prior_turns = if from_bent {
             st.pose.turns.clone()
@@ -1057,7 +1058,6 @@ pub fn fit(
         };
         let st = problem.fit_scan(st, marks.is_empty());
         let figures = problem.figures(&st);
-        let score = |f: &(f64, f64, f64)| f.0 + f.1;
         if best.as_ref().is_none_or(|b| score(&figures) < score(&b.2)) {
             best = Some((st, from_bent, figures));
         }
@@ -1105,15 +1105,9 @@ fn bent_arms(rig: &TemplateRig, st: &State) -> Option<State> {
     let front = left.cross(&up);
     let mut out = st.clone();
     for (upper, fore, side) in [(ul, fl, left), (ur, fr, -left)] {
-        let dir = |b: usize| (rig.bones[b].tail - rig.bones[b].head).try_normalize(1e-12);
         let upper_to = (-up + side * 0.15 + front * 0.1).normalize();
         let fore_to = (-side * 0.5 + front * 0.87).normalize();
-        let upper_turn = Rotation3::rotation_between(&dir(upper)?, &upper_to)?;
-        // the forearm's turn is in the upper arm's frame
-        let fore_turn =
-            Rotation3::rotation_between(&dir(fore)?, &(upper_turn.inverse() * fore_to))?;
-        out.pose.turns[upper] = upper_turn;
-        out.pose.turns[fore] = fore_turn;
+        rig.point_limb(&mut out.pose, (upper, fore), upper_to, fore_to)?;
     }
     Some(out)
 }
@@ -1264,18 +1258,15 @@ mod tests {
         // the arms hanging, the forearms across the belly (more inward than the bent
         // start's, and a little raised)
         let bone = |n: &str| rig.bones.iter().position(|b| b.name == n).unwrap();
-        let dir = |b: usize| (rig.bones[b].tail - rig.bones[b].head).normalize();
         let mut pose = RigPose::rest(&rig);
         for (side, y) in [("l", 1.0), ("r", -1.0)] {
-            let (upper, fore) = (
+            let limb = (
                 bone(&format!("upper_arm_{side}")),
                 bone(&format!("forearm_{side}")),
             );
-            let upper_turn =
-                Rotation3::rotation_between(&dir(upper), &V3::new(0.15, 0.1 * y, -1.0)).unwrap();
-            let fore_to = upper_turn.inverse() * V3::new(0.7, -0.65 * y, 0.25).normalize();
-            pose.turns[upper] = upper_turn;
-            pose.turns[fore] = Rotation3::rotation_between(&dir(fore), &fore_to).unwrap();
+            let upper_to = V3::new(0.15, 0.1 * y, -1.0).normalize();
+            let fore_to = V3::new(0.7, -0.65 * y, 0.25).normalize();
+            rig.point_limb(&mut pose, limb, upper_to, fore_to).unwrap();
         }
         let truth = rig.pose(&fig.mesh.vertices, &pose);
         let scan = Mesh::new(truth.clone(), fig.mesh.triangles.clone());

@@ -276,13 +276,8 @@ fn stance_pose(
         }
         let world = |[u, s, f]: [f64; 3]| (up * u + side * s + front * f).normalize();
         let (to_upper, to_lower) = stance.arm_directions();
-        let upper_turn = Rotation3::rotation_between(&d, &world(to_upper))
+        rig.point_limb(&mut pose, (upper, lower), world(to_upper), world(to_lower))
             .ok_or("a limb bone turned exactly round")?;
-        let in_upper = upper_turn.inverse() * world(to_lower);
-        let lower_turn = Rotation3::rotation_between(&dir(lower), &in_upper)
-            .ok_or("a limb bone turned exactly round")?;
-        pose.turns[upper] = upper_turn;
-        pose.turns[lower] = lower_turn;
     }
     if arms != 2 || legs != 2 {
         return Err(format!(

@@ -247,6 +247,27 @@ impl TemplateRig {
         xf
     }
 
+    /// Bone `upper` turned (from rest) to point along `upper_to` and its child `lower`
+    /// along `lower_to`, both directions in the rig's rest frame (the limb's parents'
+    /// turns in `pose` not counted); `None` when a bone has no length or would turn
+    /// exactly round.
+    pub fn point_limb(
+        &self,
+        pose: &mut RigPose,
+        (upper, lower): (usize, usize),
+        upper_to: V3,
+        lower_to: V3,
+    ) -> Option<()> {
+        let dir = |b: usize| (self.bones[b].tail - self.bones[b].head).try_normalize(1e-12);
+        let upper_turn = Rotation3::rotation_between(&dir(upper)?, &upper_to)?;
+        // the lower bone's turn is in the upper bone's frame
+        let lower_turn =
+            Rotation3::rotation_between(&dir(lower)?, &(upper_turn.inverse() * lower_to))?;
+        pose.turns[upper] = upper_turn;
+        pose.turns[lower] = lower_turn;
+        Some(())
+    }
+
     /// The rest vertices `rest` reshaped and posed by `pose` (linear blend skinning);
     /// same order.
     pub fn pose(&self, rest: &[V3], pose: &RigPose) -> Vec<V3> {
