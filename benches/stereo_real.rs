@@ -15,30 +15,72 @@ use conformd::stereo::disparity::{self, Profile, SgbmOptions};
 use conformd::stereo::truth::{read_truth, score, score_at_coverage};
 use std::path::Path;
 
-/// (name, left, right, truth, disparities)
-const PAIRS: [(&str, &str, &str, &str, i32); 3] = [
-    (
-        "Middlebury cones (2003, 450x375)",
-        "cones/im2.png",
-        "cones/im6.png",
-        "cones/disp2.png",
-        64,
-    ),
-    (
-        "Middlebury teddy (2003, 450x375)",
-        "teddy/im2.png",
-        "teddy/im6.png",
-        "teddy/disp2.png",
-        64,
-    ),
-    (
-        "KITTI 2012 #70 (1241x376)",
-        "kitti-000070/left.png",
-        "kitti-000070/right.png",
-        "kitti-000070/disp_noc.png",
-        128,
-    ),
-];
+/// A recorded pair: its name, the left and right images and the truth (under
+/// `tests/data/stereo`), the disparity range, and the truth's scale (`None`: its format's).
+struct Pair {
+    name: String,
+    left: String,
+    right: String,
+    truth: String,
+    disparities: i32,
+    truth_scale: Option<f64>,
+}
+
+/// The pairs the profiles were chosen on (development: Middlebury 2003's quarter-size
+/// cones and teddy, KITTI #70), then Middlebury 2005's third-size pairs, on which no
+/// setting was chosen (validation: views 1 and 5, the truth x 3, disparities under 80).
+fn pairs() -> Vec<Pair> {
+    let mut v: Vec<Pair> = [
+        (
+            "Middlebury cones (2003, 450x375)",
+            "cones/im2.png",
+            "cones/im6.png",
+            "cones/disp2.png",
+            64,
+        ),
+        (
+            "Middlebury teddy (2003, 450x375)",
+            "teddy/im2.png",
+            "teddy/im6.png",
+            "teddy/disp2.png",
+            64,
+        ),
+        (
+            "KITTI 2012 #70 (1241x376)",
+            "kitti-000070/left.png",
+            "kitti-000070/right.png",
+            "kitti-000070/disp_noc.png",
+            128,
+        ),
+    ]
+    .map(|(name, left, right, truth, disparities)| Pair {
+        name: name.into(),
+        left: left.into(),
+        right: right.into(),
+        truth: truth.into(),
+        disparities,
+        truth_scale: None,
+    })
+    .into();
+    for (dir, width) in [
+        ("art", 463),
+        ("books", 463),
+        ("dolls", 463),
+        ("laundry", 447),
+        ("moebius", 463),
+        ("reindeer", 447),
+    ] {
+        v.push(Pair {
+            name: format!("Middlebury {dir} (2005, {width}x370)"),
+            left: format!("{dir}/view1.png"),
+            right: format!("{dir}/view5.png"),
+            truth: format!("{dir}/disp1.png"),
+            disparities: 80,
+            truth_scale: Some(3.0),
+        });
+    }
+    v
+}
 
 fn grey(p: &Path) -> image::GrayImage {
     image::open(p).unwrap().to_luma8()
@@ -51,9 +93,11 @@ fn main() {
         "pair", "speckle (default)", "natural profile", "stock SGBM_3WAY"
     );
     let mut curves: Vec<Series> = Vec::new();
-    for (name, l, r, t, ndisp) in PAIRS {
+    for pair in pairs() {
+        let (name, ndisp) = (pair.name.as_str(), pair.disparities);
+        let (l, r, t) = (&pair.left, &pair.right, &pair.truth);
         let (lg, rg) = (grey(&root.join(l)), grey(&root.join(r)));
-        let truth = read_truth(&root.join(t), None).unwrap();
+        let truth = read_truth(&root.join(t), pair.truth_scale).unwrap();
         let o = SgbmOptions {
             num_disparities: ndisp,
             ..Default::default()

@@ -665,12 +665,14 @@ fn rig_file_reconstruct_settings() {
 #[test]
 fn recorded_pairs_are_scored_against_their_ground_truth() {
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/stereo");
-    for (truth, lo, hi) in [
-        ("cones/disp2.png", 50.0, 64.0),
-        ("teddy/disp2.png", 45.0, 64.0),
-        ("kitti-000070/disp_noc.png", 60.0, 128.0),
+    // Middlebury 2005's third-size truths are disparity x 3 (art's largest 74.7)
+    for (truth, scale, lo, hi) in [
+        ("cones/disp2.png", None, 50.0, 64.0),
+        ("teddy/disp2.png", None, 45.0, 64.0),
+        ("kitti-000070/disp_noc.png", None, 60.0, 128.0),
+        ("art/disp1.png", Some(3.0), 70.0, 80.0),
     ] {
-        let t = conformd::stereo::truth::read_truth(&root.join(truth), None).unwrap();
+        let t = conformd::stereo::truth::read_truth(&root.join(truth), scale).unwrap();
         let max = t
             .values
             .iter()
@@ -797,58 +799,194 @@ fn recorded_pairs_are_scored_against_their_ground_truth() {
     assert!(e.contains("10 x 10") && e.contains("450 x 375"), "{e}");
 }
 
-/// Issue 14's bar on the recorded pairs: the natural-texture profile is no worse than
-/// stock OpenCV SGBM_3WAY (its sample's settings: block 5, P1 200, P2 800) in bad pixels
-/// (more than 1 px off, of the valid ones), at equal or higher coverage, on every pair;
-/// its confidence puts fewer wrong matches than stock's first at stock's coverage; and a
-/// rig file names the profile.
-#[test]
-fn the_natural_profile_beats_stock_sgbm_on_every_recorded_pair() {
+/// A recorded pair of `tests/data/stereo`: left, right, truth, disparity range, the
+/// truth's scale (`None`: its format's), and the natural profile's bounds (bad pixels,
+/// coverage): 1.2x the figures measured (README) and a point under them.
+#[derive(Clone, Copy)]
+struct RecordedPair {
+    left: &'static str,
+    right: &'static str,
+    truth: &'static str,
+    disparities: i32,
+    truth_scale: Option<f64>,
+    bad_bound: f64,
+    coverage_floor: f64,
+}
+
+/// The development pairs (the profiles were chosen on the first three; Middlebury 2005's
+/// art, dolls and moebius joined later) and the validation pairs (Middlebury 2005's
+/// books, laundry and reindeer, never tuned on): every pair of the set.
+const RECORDED_PAIRS: [RecordedPair; 9] = [
+    pair(
+        "cones/im2.png",
+        "cones/im6.png",
+        "cones/disp2.png",
+        64,
+        None,
+        0.051,
+        0.84,
+    ),
+    pair(
+        "teddy/im2.png",
+        "teddy/im6.png",
+        "teddy/disp2.png",
+        64,
+        None,
+        0.082,
+        0.842,
+    ),
+    pair(
+        "kitti-000070/left.png",
+        "kitti-000070/right.png",
+        "kitti-000070/disp_noc.png",
+        128,
+        None,
+        0.083,
+        0.923,
+    ),
+    // measured 10.62% at 69.2% (stock 18.28% at 72.3%)
+    pair(
+        "art/view1.png",
+        "art/view5.png",
+        "art/disp1.png",
+        80,
+        Some(3.0),
+        0.128,
+        0.682,
+    ),
+    // 7.37% at 84.2% (stock 9.61% at 79.6%)
+    pair(
+        "dolls/view1.png",
+        "dolls/view5.png",
+        "dolls/disp1.png",
+        80,
+        Some(3.0),
+        0.089,
+        0.832,
+    ),
+    // 10.80% at 81.9% (stock 12.28% at 78.3%)
+    pair(
+        "moebius/view1.png",
+        "moebius/view5.png",
+        "moebius/disp1.png",
+        80,
+        Some(3.0),
+        0.130,
+        0.809,
+    ),
+    // validation: 8.07% at 83.3% (stock 10.46% at 80.5%)
+    pair(
+        "books/view1.png",
+        "books/view5.png",
+        "books/disp1.png",
+        80,
+        Some(3.0),
+        0.097,
+        0.823,
+    ),
+    // 14.56% at 78.2% (stock 17.28% at 76.8%)
+    pair(
+        "laundry/view1.png",
+        "laundry/view5.png",
+        "laundry/disp1.png",
+        80,
+        Some(3.0),
+        0.175,
+        0.772,
+    ),
+    // 7.93% at 78.8% (stock 12.29% at 75.3%)
+    pair(
+        "reindeer/view1.png",
+        "reindeer/view5.png",
+        "reindeer/disp1.png",
+        80,
+        Some(3.0),
+        0.096,
+        0.778,
+    ),
+];
+
+const fn pair(
+    left: &'static str,
+    right: &'static str,
+    truth: &'static str,
+    disparities: i32,
+    truth_scale: Option<f64>,
+    bad_bound: f64,
+    coverage_floor: f64,
+) -> RecordedPair {
+    RecordedPair {
+        left,
+        right,
+        truth,
+        disparities,
+        truth_scale,
+        bad_bound,
+        coverage_floor,
+    }
+}
+
+/// How the natural profile and stock SGBM do on a recorded pair: the profile's default
+/// map, stock's, and the profile's map ranked by confidence (no cut) scored at stock's
+/// coverage, at half its own and at all of it.
+struct AgainstStock {
+    ours: conformd::stereo::truth::TruthScore,
+    stock: conformd::stereo::truth::TruthScore,
+    at_stock: conformd::stereo::truth::TruthScore,
+    half: conformd::stereo::truth::TruthScore,
+    all: conformd::stereo::truth::TruthScore,
+}
+
+fn natural_against_stock(p: &RecordedPair) -> AgainstStock {
     use conformd::stereo::disparity::{self, Profile, SgbmOptions};
     use conformd::stereo::truth::{read_truth, score, score_at_coverage};
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/stereo");
-    // (left, right, truth, disparities, bad-pixel bound, coverage floor): the bounds 1.2x
-    // the figures measured (4.22% at 85.0%, 6.81% at 85.2%, 6.90% at 93.3%; README), the
-    // floors a point under them
-    for (l, r, t, ndisp, bad_bound, coverage_floor) in [
-        (
-            "cones/im2.png",
-            "cones/im6.png",
-            "cones/disp2.png",
-            64,
-            0.051,
-            0.84,
-        ),
-        (
-            "teddy/im2.png",
-            "teddy/im6.png",
-            "teddy/disp2.png",
-            64,
-            0.082,
-            0.842,
-        ),
-        (
-            "kitti-000070/left.png",
-            "kitti-000070/right.png",
-            "kitti-000070/disp_noc.png",
-            128,
-            0.083,
-            0.923,
-        ),
-    ] {
-        let lg = image::open(root.join(l)).unwrap().to_luma8();
-        let rg = image::open(root.join(r)).unwrap().to_luma8();
-        let truth = read_truth(&root.join(t), None).unwrap();
-        let o = SgbmOptions {
-            num_disparities: ndisp,
-            ..SgbmOptions::for_profile(Profile::Natural)
-        };
-        let ours =
-            disparity::disparity(lg.as_raw(), rg.as_raw(), lg.width(), lg.height(), &o).unwrap();
-        let ours = score(&ours, &truth, 0).unwrap();
-        let stock = disparity::stock_sgbm(lg.as_raw(), rg.as_raw(), lg.width(), lg.height(), ndisp)
-            .unwrap();
-        let stock = score(&stock, &truth, 0).unwrap();
+    let lg = image::open(root.join(p.left)).unwrap().to_luma8();
+    let rg = image::open(root.join(p.right)).unwrap().to_luma8();
+    let (w, h) = lg.dimensions();
+    let truth = read_truth(&root.join(p.truth), p.truth_scale).unwrap();
+    let o = SgbmOptions {
+        num_disparities: p.disparities,
+        ..SgbmOptions::for_profile(Profile::Natural)
+    };
+    let ours = disparity::disparity(lg.as_raw(), rg.as_raw(), w, h, &o).unwrap();
+    let ours = score(&ours, &truth, 0).unwrap();
+    let stock = disparity::stock_sgbm(lg.as_raw(), rg.as_raw(), w, h, p.disparities).unwrap();
+    let stock = score(&stock, &truth, 0).unwrap();
+    let ranked = SgbmOptions {
+        min_confidence: 0.0,
+        ..o
+    };
+    let (d, c) =
+        disparity::disparity_with_confidence(lg.as_raw(), rg.as_raw(), w, h, &ranked).unwrap();
+    let all = score(&d, &truth, 0).unwrap();
+    AgainstStock {
+        ours,
+        stock,
+        at_stock: score_at_coverage(&d, &c, &truth, 0, stock.coverage).unwrap(),
+        half: score_at_coverage(&d, &c, &truth, 0, all.coverage / 2.0).unwrap(),
+        all,
+    }
+}
+
+/// Issue 14's and 26's bar on the recorded pairs: the natural-texture profile is no
+/// worse than stock OpenCV SGBM_3WAY (its sample's settings: block 5, P1 200, P2 800) in
+/// bad pixels (more than 1 px off, of the valid ones), at equal or higher coverage, on
+/// every pair but art's coverage ([`art_default_coverage_reaches_stock_known_failure`]);
+/// its confidence puts fewer wrong matches than stock's first at stock's coverage on
+/// every pair; and a rig file names the profile.
+#[test]
+fn the_natural_profile_beats_stock_sgbm_on_every_recorded_pair() {
+    use conformd::stereo::disparity::{Profile, SgbmOptions};
+    for p in &RECORDED_PAIRS {
+        let AgainstStock {
+            ours,
+            stock,
+            at_stock,
+            half,
+            all,
+        } = natural_against_stock(p);
+        let l = p.left;
         let line = format!(
             "{l}: natural {:.2}% bad at {:.1}% coverage, stock {:.2}% at {:.1}%",
             ours.bad1 * 100.0,
@@ -857,12 +995,12 @@ fn the_natural_profile_beats_stock_sgbm_on_every_recorded_pair() {
             stock.coverage * 100.0
         );
         println!("{line}");
+        assert!(ours.bad1 <= stock.bad1, "{line}");
+        if p.left != ART.left {
+            assert!(ours.coverage >= stock.coverage, "{line}");
+        }
         assert!(
-            ours.bad1 <= stock.bad1 && ours.coverage >= stock.coverage,
-            "{line}"
-        );
-        assert!(
-            ours.bad1 < bad_bound && ours.coverage > coverage_floor,
+            ours.bad1 < p.bad_bound && ours.coverage > p.coverage_floor,
             "{line}"
         );
         // where stock SGBM is under 8%, under 5% at 80% coverage or more
@@ -870,24 +1008,9 @@ fn the_natural_profile_beats_stock_sgbm_on_every_recorded_pair() {
             assert!(ours.bad1 < 0.05 && ours.coverage >= 0.8, "{line}");
         }
         // ranked by confidence (no cut), the most confident pixels at stock's coverage
-        // hold fewer wrong matches than stock (measured 3.12 / 5.61 / 6.83% against 6.95 /
-        // 9.81 / 8.99%), and half of the full coverage far fewer than all of it (the
-        // confidence orders the pixels, not merely thins them)
-        let ranked = SgbmOptions {
-            min_confidence: 0.0,
-            ..o.clone()
-        };
-        let (d, c) = disparity::disparity_with_confidence(
-            lg.as_raw(),
-            rg.as_raw(),
-            lg.width(),
-            lg.height(),
-            &ranked,
-        )
-        .unwrap();
-        let at_stock = score_at_coverage(&d, &c, &truth, 0, stock.coverage).unwrap();
-        let all = score(&d, &truth, 0).unwrap();
-        let half = score_at_coverage(&d, &c, &truth, 0, all.coverage / 2.0).unwrap();
+        // hold fewer wrong matches than stock (README: e.g. 3.12 / 5.61 / 6.83% against
+        // 6.95 / 9.81 / 8.99% on the first three), and half of the full coverage far fewer
+        // than all of it (the confidence orders the pixels, not merely thins them)
         let line = format!(
             "{l}: by confidence {:.2}% bad at stock's {:.1}% coverage (stock {:.2}%); {:.2}% at half of {:.1}% ({:.2}% at all)",
             at_stock.bad1 * 100.0,
@@ -916,6 +1039,27 @@ fn the_natural_profile_beats_stock_sgbm_on_every_recorded_pair() {
     let e = toml::from_str::<SgbmOptions>("profile = \"sunny\"").unwrap_err();
     assert!(e.to_string().contains("sunny"), "{e}");
     assert!(toml::from_str::<SgbmOptions>("min_contrst = 1.0").is_err());
+}
+
+/// Middlebury 2005's art, a development pair.
+const ART: RecordedPair = RECORDED_PAIRS[3];
+
+/// Known failure (issue 26): on art the natural profile's default cut keeps 69.2% of the
+/// pixels against stock's 72.3% (with 10.62% wrong against stock's 18.28%): its
+/// confidence cut drops 6.5% of its matches there (2-4% on the other pairs), most of
+/// them on the untextured backdrop. Without the cut it covers 74.0% at 12.80%, but
+/// lowering the default cut raises every other pair's wrong matches. The assertion is
+/// the right outcome; it fails today.
+#[test]
+#[should_panic(expected = "art: the default covers less than stock")]
+fn art_default_coverage_reaches_stock_known_failure() {
+    let AgainstStock { ours, stock, .. } = natural_against_stock(&ART);
+    assert!(
+        ours.coverage >= stock.coverage,
+        "art: the default covers less than stock ({:.1}% against {:.1}%)",
+        ours.coverage * 100.0,
+        stock.coverage * 100.0
+    );
 }
 
 /// A recorded pair replayed as a station would see it (issue 14): `import-pair` turns
