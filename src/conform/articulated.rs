@@ -719,18 +719,29 @@ impl Problem<'_> {
             let Some(cost) = ChainCost::new(self, st, b) else {
                 continue;
             };
-            let base = cost.of(st);
-            let best = dirs
+            let base = cost.of(st, 1);
+            let tried = |turn: &Rotation3<f64>| {
+                let mut tried = st.clone();
+                tried.pose.turns[b] = *turn;
+                tried
+            };
+            // every direction priced on a share of the chain's proxies, the cheapest few
+            // on all of them
+            let mut priced: Vec<(f64, Rotation3<f64>)> = dirs
                 .par_iter()
                 .filter_map(|d| {
                     let turn = Rotation3::rotation_between(&now, d)? * st.pose.turns[b];
                     if rotation_angle(&turn) > limit || (d - now).norm() < 0.2 {
                         return None;
                     }
-                    let mut tried = st.clone();
-                    tried.pose.turns[b] = turn;
-                    Some((cost.of(&tried), turn))
+                    Some((cost.of(&tried(&turn), CHAIN_PRICE_STRIDE), turn))
                 })
+                .collect();
+            priced.sort_by(|a, b| a.0.total_cmp(&b.0));
+            priced.truncate(CHAIN_SHORTLIST);
+            let best = priced
+                .par_iter()
+                .map(|(_, turn)| (cost.of(&tried(turn), 1), *turn))
                 .min_by(|a, b| a.0.total_cmp(&b.0));
             if let Some((c, turn)) = best
                 && c < base * (1.0 - CHAIN_SEARCH_GAIN)
@@ -849,6 +860,8 @@ struct ChainCost<'a> {
     still_from_scan: Vec<f64>,
     cap: f64,
     total_area: f64,
+    /// the chain's proxies' area
+    moving_area: f64,
 }
 
 impl<'a> ChainCost<'a> {
@@ -892,6 +905,7 @@ impl<'a> ChainCost<'a> {
                 })
                 .collect()
         };
+        let moving_area = moving.iter().map(|&i| problem.area_w[i]).sum();
         Some(ChainCost {
             problem,
             moving,
@@ -899,21 +913,23 @@ impl<'a> ChainCost<'a> {
             still_from_scan,
             cap,
             total_area: problem.area_w.iter().sum(),
+            moving_area,
         })
     }
 
     /// The cost of `st`, which differs from the state this was made for only in the
-    /// chain's turns.
-    fn of(&self, st: &State) -> f64 {
+    /// chain's turns; with `stride` over 1, the chain's distances to the scan are those
+    /// of every `stride`-th of its proxies, weighted up to the chain's area (a price
+    /// for sorting candidates, about `stride` times cheaper).
+    fn of(&self, st: &State, stride: usize) -> f64 {
         let p = self.problem;
         let x = p.prig.pose_some(st, &self.moving);
-        let to_scan = self.still_to_scan
-            + self
-                .moving
-                .iter()
-                .zip(&x)
-                .map(|(&i, q)| p.surface.distance_capped(q, self.cap) * p.area_w[i])
-                .sum::<f64>();
+        let (mut near, mut area) = (0.0, 0.0);
+        for (&i, q) in self.moving.iter().zip(&x).step_by(stride.max(1)) {
+            near += p.surface.distance_capped(q, self.cap) * p.area_w[i];
+            area += p.area_w[i];
+        }
+        let to_scan = self.still_to_scan + near * self.moving_area / area.max(1e-300);
         let arr: Vec<[f64; 3]> = x.iter().map(|q| [q.x, q.y, q.z]).collect();
         let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&arr);
         // a sample farther from the chain's bounding box than from the still proxies
@@ -977,6 +993,10 @@ const CHAIN_SEARCH_CAP: f64 = 0.05;
 /// A chain root is a bone turning at least this far below one that turns less.
 const CHAIN_ROOT_LIMIT_DEG: f64 = 60.0;
 const CHAIN_DIRECTIONS: usize = 48;
+/// The directions are priced on every this-many-th proxy of the chain, and this many of
+/// the cheapest are costed on all of them.
+const CHAIN_PRICE_STRIDE: usize = 4;
+const CHAIN_SHORTLIST: usize = 6;
 /// The share of the cost a searched turn must save to be taken.
 const CHAIN_SEARCH_GAIN: f64 = 0.02;
 

@@ -119,6 +119,10 @@ impl Default for SearchSettings {
 /// Scan samples the search scores with, and the part of them each limb may explain.
 const SCAN_SAMPLES: usize = 3000;
 const LIMB_SAMPLES: usize = 300;
+/// The directions are priced on every this-many-th probe's distance to the scan, and
+/// this many of the cheapest scored on all probes.
+const PRICE_STRIDE: usize = 4;
+const SHORTLIST: usize = 6;
 const REST_SAMPLES: usize = 6000;
 /// scan points the limbs' distance to the scan is looked up among
 const SURFACE_SAMPLES: usize = 50_000;
@@ -295,8 +299,9 @@ impl<'a> LimbTurn<'a> {
     }
 
     /// The score of a turn (axis, angle; `None` for none): samples left open plus the
-    /// limb's distance off the scan.
-    fn score(&self, rot: &Option<(Unit<V3>, f64)>) -> f64 {
+    /// limb's distance off the scan; with `stride` over 1, that distance is every
+    /// `stride`-th probe's, weighted up to the probes' area (a price for sorting turns).
+    fn score(&self, rot: &Option<(Unit<V3>, f64)>, stride: usize) -> f64 {
         let (x, normals, area) = (self.body.x, self.body.normals, self.body.area);
         let (joint, tau) = (self.joint, self.tau);
         let turned = |i: u32, w: f64| -> (V3, V3) {
@@ -309,17 +314,25 @@ impl<'a> LimbTurn<'a> {
                 None => (p, nv),
             }
         };
-        let mut off = 0.0;
+        let (mut off, mut priced_area, mut probe_area) = (0.0, 0.0, 0.0);
         let mut pts = Vec::with_capacity(self.probe.len());
-        for &(i, w) in &self.probe {
+        for (k, &(i, w)) in self.probe.iter().enumerate() {
             let (p, nv) = turned(i, w);
+            pts.push([p.x, p.y, p.z]);
+            probe_area += area[i as usize];
+            if k % stride.max(1) != 0 {
+                continue;
+            }
             // past `tau` the distance counts as `tau`: a bounded query is enough
             let dd = match nearest_within(&self.near.tree, &p, tau) {
                 Some((k, d)) if self.near.normals[k].dot(&nv) > 0.3 => d / tau,
                 _ => 1.0,
             };
             off += area[i as usize] * dd;
-            pts.push([p.x, p.y, p.z]);
+            priced_area += area[i as usize];
+        }
+        if priced_area > 0.0 {
+            off *= probe_area / priced_area;
         }
         let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&pts);
         // a sample farther than `tau` from the probes' box stays open: no query
@@ -347,17 +360,25 @@ impl<'a> LimbTurn<'a> {
     /// limb's samples) over leaving the limb as it is.
     fn best(&self, dirs: &[V3], s: &SearchSettings) -> Option<(Unit<V3>, f64)> {
         let along = self.along;
-        let here = self.score(&None);
+        let here = self.score(&None, 1);
+        let turn_to = |d: &V3| -> Option<(Unit<V3>, f64)> {
+            let angle = along.dot(d).clamp(-1.0, 1.0).acos();
+            if angle.to_degrees() > s.max_degrees || angle < 1e-3 {
+                return None;
+            }
+            Some((Unit::try_new(along.cross(d), 1e-9)?, angle))
+        };
+        // every direction priced on a share of the probes, the cheapest few on all
         let best_of = |dirs: &[V3]| {
-            dirs.par_iter()
-                .filter_map(|d| {
-                    let angle = along.dot(d).clamp(-1.0, 1.0).acos();
-                    if angle.to_degrees() > s.max_degrees || angle < 1e-3 {
-                        return None;
-                    }
-                    let axis = Unit::try_new(along.cross(d), 1e-9)?;
-                    Some((self.score(&Some((axis, angle))), *d))
-                })
+            let mut priced: Vec<(f64, V3)> = dirs
+                .par_iter()
+                .filter_map(|d| Some((self.score(&Some(turn_to(d)?), PRICE_STRIDE), *d)))
+                .collect();
+            priced.sort_by(|a, b| a.0.total_cmp(&b.0));
+            priced.truncate(SHORTLIST);
+            priced
+                .par_iter()
+                .filter_map(|(_, d)| Some((self.score(&Some(turn_to(d)?), 1), *d)))
                 .min_by(|a, b| a.0.total_cmp(&b.0))
         };
         let best = best_of(dirs).and_then(|(sc, d)| {
