@@ -319,6 +319,11 @@ impl<'a> ProxyRig<'a> {
         i: usize,
         with_normal: bool,
     ) -> (V3, V3) {
+        self.blend(xf, &self.shaped(st, i), i, with_normal)
+    }
+
+    /// Proxy `i`'s rest position with the shape factors of `st` applied.
+    fn shaped(&self, st: &State, i: usize) -> V3 {
         let mut p = self.rest[i];
         for &(k, d) in &self.shapes[i] {
             let f = st.pose.factors[k];
@@ -326,6 +331,18 @@ impl<'a> ProxyRig<'a> {
                 p += d * (f - 1.0);
             }
         }
+        p
+    }
+
+    /// Proxy `i` at its shaped rest position `p` posed by the bone transforms `xf`
+    /// (before the placement), and, when asked, its normal.
+    fn blend(
+        &self,
+        xf: &[(nalgebra::Matrix3<f64>, V3)],
+        p: &V3,
+        i: usize,
+        with_normal: bool,
+    ) -> (V3, V3) {
         let mut q = V3::zeros();
         let mut m = V3::zeros();
         for &(b, w) in self.weights[i] {
@@ -626,7 +643,9 @@ impl Problem<'_> {
     }
 
     /// Numeric Jacobian of every proxy's position (`x` in `st`), one column per
-    /// parameter; only the proxies a parameter moves are posed.
+    /// parameter; only the proxies a parameter moves are posed. The placement's and
+    /// the turns' columns leave the shape as it is: those reuse each proxy's shaped
+    /// rest position, and the placement's its posed one.
     fn jacobian(
         &self,
         params: &Params,
@@ -637,18 +656,35 @@ impl Problem<'_> {
     ) -> Vec<Vec<V3>> {
         let (prig, rig) = (&self.prig, self.rig);
         let np = params.count();
+        let first_shape = 7 + 3 * params.free_bones.len();
         let h = 1e-5;
+        let shaped: Vec<V3> = (0..x.len()).map(|i| prig.shaped(st, i)).collect();
+        let xf_now = prig.transforms(st);
+        let unplaced: Vec<V3> = (0..x.len())
+            .map(|i| prig.blend(&xf_now, &shaped[i], i, false).0)
+            .collect();
         (0..np)
             .into_par_iter()
             .map(|p| {
                 let mut d = vec![0.0; np];
                 d[p] = h;
                 let moved = params.apply(st, &d, centre, rig);
-                let xf = prig.transforms(&moved);
                 let mut col = vec![V3::zeros(); x.len()];
+                let sim = &moved.placement;
+                if p < 7 {
+                    for &i in &moved_by[p] {
+                        col[i] = (sim.apply(&unplaced[i]) - x[i]) / h;
+                    }
+                    return col;
+                }
+                let xf = prig.transforms(&moved);
                 for &i in &moved_by[p] {
-                    let q = prig.pose_one(&moved, &xf, i, false).0;
-                    col[i] = (moved.placement.apply(&q) - x[i]) / h;
+                    let q = if p < first_shape {
+                        prig.blend(&xf, &shaped[i], i, false).0
+                    } else {
+                        prig.pose_one(&moved, &xf, i, false).0
+                    };
+                    col[i] = (sim.apply(&q) - x[i]) / h;
                 }
                 col
             })
