@@ -15,72 +15,8 @@ use conformd::stereo::disparity::{self, Profile, SgbmOptions};
 use conformd::stereo::truth::{read_truth, score, score_at_coverage};
 use std::path::Path;
 
-/// A recorded pair: its name, the left and right images and the truth (under
-/// `tests/data/stereo`), the disparity range, and the truth's scale (`None`: its format's).
-struct Pair {
-    name: String,
-    left: String,
-    right: String,
-    truth: String,
-    disparities: i32,
-    truth_scale: Option<f64>,
-}
-
-/// The pairs the profiles were chosen on (development: Middlebury 2003's quarter-size
-/// cones and teddy, KITTI #70), then Middlebury 2005's third-size pairs, on which no
-/// setting was chosen (validation: views 1 and 5, the truth x 3, disparities under 80).
-fn pairs() -> Vec<Pair> {
-    let mut v: Vec<Pair> = [
-        (
-            "Middlebury cones (2003, 450x375)",
-            "cones/im2.png",
-            "cones/im6.png",
-            "cones/disp2.png",
-            64,
-        ),
-        (
-            "Middlebury teddy (2003, 450x375)",
-            "teddy/im2.png",
-            "teddy/im6.png",
-            "teddy/disp2.png",
-            64,
-        ),
-        (
-            "KITTI 2012 #70 (1241x376)",
-            "kitti-000070/left.png",
-            "kitti-000070/right.png",
-            "kitti-000070/disp_noc.png",
-            128,
-        ),
-    ]
-    .map(|(name, left, right, truth, disparities)| Pair {
-        name: name.into(),
-        left: left.into(),
-        right: right.into(),
-        truth: truth.into(),
-        disparities,
-        truth_scale: None,
-    })
-    .into();
-    for (dir, width) in [
-        ("art", 463),
-        ("books", 463),
-        ("dolls", 463),
-        ("laundry", 447),
-        ("moebius", 463),
-        ("reindeer", 447),
-    ] {
-        v.push(Pair {
-            name: format!("Middlebury {dir} (2005, {width}x370)"),
-            left: format!("{dir}/view1.png"),
-            right: format!("{dir}/view5.png"),
-            truth: format!("{dir}/disp1.png"),
-            disparities: 80,
-            truth_scale: Some(3.0),
-        });
-    }
-    v
-}
+#[path = "../tests/common/stereo_pairs.rs"]
+mod stereo_pairs;
 
 fn grey(p: &Path) -> image::GrayImage {
     image::open(p).unwrap().to_luma8()
@@ -89,12 +25,17 @@ fn grey(p: &Path) -> image::GrayImage {
 fn main() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/stereo");
     println!(
-        "{:<34} {:>18} {:>18} {:>18}   (bad > 1 px of valid / coverage)",
+        "{:<42} {:>18} {:>18} {:>18}   (bad > 1 px of valid / coverage)",
         "pair", "speckle (default)", "natural profile", "stock SGBM_3WAY"
     );
     let mut curves: Vec<Series> = Vec::new();
-    for pair in pairs() {
-        let (name, ndisp) = (pair.name.as_str(), pair.disparities);
+    for pair in stereo_pairs::recorded_pairs() {
+        let name = if pair.validation {
+            format!("{} (val.)", pair.name)
+        } else {
+            pair.name.clone()
+        };
+        let (name, ndisp) = (name.as_str(), pair.disparities);
         let (l, r, t) = (&pair.left, &pair.right, &pair.truth);
         let (lg, rg) = (grey(&root.join(l)), grey(&root.join(r)));
         let truth = read_truth(&root.join(t), pair.truth_scale).unwrap();
@@ -123,7 +64,7 @@ fn main() {
         let cells = [speckle, natural, stock_score]
             .map(|s| format!("{:>6.2}% / {:>5.1}%", s.bad1 * 100.0, s.coverage * 100.0));
         println!(
-            "{name:<34} {:>18} {:>18} {:>18}   seconds {:.3} / {:.3} / {:.3}",
+            "{name:<42} {:>18} {:>18} {:>18}   seconds {:.3} / {:.3} / {:.3}",
             cells[0], cells[1], cells[2], seconds[0], seconds[1], seconds[2]
         );
         // the natural profile without its confidence cut, ranked by confidence: the
@@ -142,7 +83,7 @@ fn main() {
         .unwrap();
         let at = score_at_coverage(&nd, &nc, &truth, 0, stock_score.coverage).unwrap();
         println!(
-            "{:<34} the most confident at stock's coverage: {:.2}% bad at {:.1}% (stock {:.2}%)",
+            "{:<42} the most confident at stock's coverage: {:.2}% bad at {:.1}% (stock {:.2}%)",
             "",
             at.bad1 * 100.0,
             at.coverage * 100.0,
@@ -154,7 +95,7 @@ fn main() {
             .filter_map(|c| score_at_coverage(&nd, &nc, &truth, 0, c).ok())
             .map(|s| (s.coverage * 100.0, s.bad1 * 100.0))
             .collect();
-        let short = name.split(" (").next().unwrap_or(name);
+        let short = pair.dir;
         curves.push(Series {
             name: format!("{short}: conformd, by confidence"),
             unit: "%".into(),

@@ -3,6 +3,7 @@
 
 pub mod deadline;
 pub mod postgres;
+pub mod stereo_pairs;
 
 use conformd::conform::{ConformOptions, Conformed, conform};
 use conformd::synth::cases::Case;
