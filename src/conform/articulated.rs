@@ -965,7 +965,8 @@ impl<'a> ChainCost<'a> {
             near += p.surface.distance_capped(q, self.cap) * p.area_w[i];
             area += p.area_w[i];
         }
-        let to_scan = self.still_to_scan + near * self.moving_area / area.max(1e-300);
+        // the ratio first: exactly 1 at stride 1 (the same sum in the same order)
+        let to_scan = self.still_to_scan + near * (self.moving_area / area.max(1e-300));
         let arr: Vec<[f64; 3]> = x.iter().map(|q| [q.x, q.y, q.z]).collect();
         let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&arr);
         // a sample farther from the chain's bounding box than from the still proxies
