@@ -611,7 +611,7 @@ fn killed_at_any_point_and_restarted_every_capture_is_processed_exactly_once() {
 fn burst(watch: bool, n: usize) {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let (_, sets) = simulated();
+    let (sim, sets) = simulated();
     let port = free_port();
     let watch = watch.to_string();
     let cfg = station(d, port, "", &[("rescan_s", "2.0"), ("watch", &watch)]);
@@ -620,9 +620,23 @@ fn burst(watch: bool, n: usize) {
     let text = std::fs::read_to_string(&cfg).unwrap();
     let model = "[model]\nfile = \"data/model.json\"\n";
     assert!(text.contains(model));
+    // scans fused on a 1 cm grid (25k points, not 82k): the same path at three quarters
+    // of the work a set; the full density's paths are the other tests'
+    let rig = sim.path().join("rig.toml");
+    let coarse = d.join("rig-1cm.toml");
+    let rig_text = std::fs::read_to_string(&rig).unwrap();
+    assert!(!rig_text.lines().any(|l| l.trim() == "[reconstruct]"));
+    std::fs::write(
+        &coarse,
+        format!("{rig_text}\n[reconstruct]\nvoxel = 0.01\n"),
+    )
+    .unwrap();
+    let rig_line = format!("file = \"{}\"", rig.display());
+    assert!(text.contains(&rig_line));
     std::fs::write(
         &cfg,
-        text.replace(model, &format!("{model}rebuild_every = {every}\n")),
+        text.replace(model, &format!("{model}rebuild_every = {every}\n"))
+            .replace(&rig_line, &format!("file = \"{}\"", coarse.display())),
     )
     .unwrap();
     std::fs::create_dir_all(d.join("data/incoming")).unwrap();
