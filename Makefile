@@ -21,7 +21,7 @@ TEST_PACKAGES := chromium chromium-driver postgresql $(DEB_PACKAGES) fakeroot sy
 CARGO ?= cargo
 DEMO_OUT ?= demo-output
 
-.PHONY: all deps test-deps apt build lint test test-hardware verify-unit demo bench deb firmware clean
+.PHONY: all deps test-deps apt build lint shipped test test-hardware verify-unit demo bench deb firmware clean
 
 all: build
 
@@ -62,11 +62,22 @@ lint: deps
 # of its own catches it stops the run with a line saying so, rather than the CI job's
 # own limit ending it without one.
 TEST_LIMIT_S ?= 2700
-test: test-deps lint
+test: test-deps lint shipped
 	@timeout --kill-after=60 $(TEST_LIMIT_S) $(CARGO) test --locked --profile ci --features test-hooks; rc=$$?; \
 	if [ $$rc -eq 124 ] || [ $$rc -eq 137 ]; then echo "make test: stopped after $(TEST_LIMIT_S) s (TEST_LIMIT_S): a test hung"; fi; \
 	exit $$rc
 	@$(MAKE) --no-print-directory verify-unit
+
+# What ships, not only what is tested: the binary without the test hooks (the `ci`
+# profile: release code with debug assertions) built and run through the station demo on
+# three captures (the daemon, replay cameras, the simulated trigger box, processing and
+# the posture model), with a limit of its own.
+shipped: deps
+	$(CARGO) build --locked --profile ci --bin conformd
+	@d=$$(mktemp -d); \
+	if timeout --kill-after=10 600 target/ci/conformd demo station --captures 3 --out $$d/demo > $$d/log 2>&1; then \
+	  tail -n 4 $$d/log; rm -rf $$d; echo "shipped configuration: built without the test hooks, the station demo ran"; \
+	else rc=$$?; cat $$d/log; rm -rf $$d; echo "shipped configuration: the station demo failed ($$rc)"; exit 1; fi
 
 # systemd-analyze verify on the units (where systemd is), pointing at the binary just built.
 verify-unit:
