@@ -645,24 +645,13 @@ fn killed_and_restarted(url: Option<&str>) {
     );
     // recorded done once each, over the five runs' logs (by the job's end, or adopted
     // at a start from a complete result published just before a kill)
-    let mut done: Vec<String> = std::fs::read_dir(d)
+    let logs: Vec<PathBuf> = std::fs::read_dir(d)
         .unwrap()
         .flatten()
         .filter(|e| e.file_name().to_string_lossy().starts_with("daemon-"))
-        .flat_map(|e| {
-            std::fs::read_to_string(e.path())
-                .unwrap()
-                .lines()
-                .filter(|l| l.ends_with(" done") || l.contains(" done "))
-                .filter_map(|l| {
-                    l.split_whitespace()
-                        .find_map(|w| w.strip_prefix("capture="))
-                        .map(str::to_string)
-                })
-                .collect::<Vec<_>>()
-        })
+        .map(|e| e.path())
         .collect();
-    done.sort();
+    let done = common::recorded_done(&logs);
     let ids: Vec<String> = (0..n).map(|i| format!("kill-{i:02}")).collect();
     assert_eq!(done, ids, "each capture recorded done exactly once");
     // the raw captures, moved into captures/, byte for byte as they were dropped in

@@ -113,27 +113,6 @@ fn assert_complete(results: &Path, id: &str) {
     }
 }
 
-/// The captures the workers' logs say they published (recorded done), sorted.
-fn published(logs: &[PathBuf]) -> Vec<String> {
-    let mut ids: Vec<String> = logs
-        .iter()
-        .flat_map(|l| {
-            std::fs::read_to_string(l)
-                .unwrap()
-                .lines()
-                .filter(|line| line.contains(" done"))
-                .filter_map(|line| {
-                    line.split_whitespace()
-                        .find_map(|w| w.strip_prefix("capture="))
-                        .map(str::to_string)
-                })
-                .collect::<Vec<_>>()
-        })
-        .collect();
-    ids.sort();
-    ids
-}
-
 /// Enqueues `n` jobs `<prefix>-NN` with their (empty) capture folders.
 fn enqueue(j: &mut journal::Journal, data: &Path, prefix: &str, n: usize) -> Vec<String> {
     let ids: Vec<String> = (0..n).map(|i| format!("{prefix}-{i:02}")).collect();
@@ -194,7 +173,7 @@ fn a_worker_that_stalls_past_its_lease_finds_its_job_taken_and_discards_its_resu
             .contains("another worker took it: its outcome is discarded")
     });
     assert_eq!(
-        published(&logs),
+        common::recorded_done(&logs),
         ids,
         "a job published twice, or not at all"
     );
@@ -288,7 +267,7 @@ fn three_workers_60_jobs_one_killed_mid_job_every_job_done_exactly_once() {
     assert!(hidden(&results).is_empty(), "{:?}", hidden(&results));
     // exactly once: each job was recorded done (its result published) by one worker
     assert_eq!(
-        published(&logs),
+        common::recorded_done(&logs),
         ids,
         "a job published twice, or not at all"
     );

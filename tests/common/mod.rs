@@ -22,6 +22,28 @@ pub fn succeeded(out: std::process::Output) -> std::process::Output {
     out
 }
 
+/// The captures the logs `logs` say were recorded done (by a job's end, or adopted
+/// from a complete result at a start), sorted, once per line that says so.
+pub fn recorded_done(logs: &[std::path::PathBuf]) -> Vec<String> {
+    let mut ids: Vec<String> = logs
+        .iter()
+        .flat_map(|l| {
+            std::fs::read_to_string(l)
+                .unwrap()
+                .lines()
+                .filter(|line| line.contains(" done"))
+                .filter_map(|line| {
+                    line.split_whitespace()
+                        .find_map(|w| w.strip_prefix("capture="))
+                        .map(str::to_string)
+                })
+                .collect::<Vec<_>>()
+        })
+        .collect();
+    ids.sort();
+    ids
+}
+
 /// Runs the `conformd` binary with `args` in `dir`, within the children's deadline.
 pub fn conformd(args: &[&str], dir: &std::path::Path) -> std::process::Output {
     std::process::Command::new(env!("CARGO_BIN_EXE_conformd"))

@@ -47,6 +47,8 @@ fn station(
             println!("{d}");
             if keep_running {
                 println!("the daemon keeps running; press Enter or Ctrl-C to stop it");
+            } else {
+                println!("(the daemon stops with the demo: --keep-running keeps the page up)");
             }
         },
         &mut || keep_running && !stop.load(std::sync::atomic::Ordering::SeqCst),
