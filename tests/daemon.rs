@@ -612,10 +612,8 @@ fn killed_and_restarted(url: Option<&str>) {
         drop_set(&sets[i % sets.len()], &incoming, &format!("kill-{i:02}"));
     }
     let dropped = capture_bytes(&incoming);
-    let open = || match url {
-        Some(u) => journal::open(Some(u), &d.join("data")).unwrap(),
-        None => journal(d),
-    };
+    // the station's own choice of store: the URL, or the SQLite file in its data
+    let open = || journal::open(url, &d.join("data")).unwrap();
     for (round, after_ms) in [300u64, 1200, 2500, 4000].into_iter().enumerate() {
         let daemon = Daemon::start(&cfg, port, &[]);
         std::thread::sleep(Duration::from_millis(after_ms));
