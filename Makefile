@@ -21,7 +21,7 @@ TEST_PACKAGES := chromium chromium-driver postgresql $(DEB_PACKAGES) fakeroot sy
 CARGO ?= cargo
 DEMO_OUT ?= demo-output
 
-.PHONY: all deps test-deps apt build lint shipped test test-hardware verify-unit demo bench deb firmware clean
+.PHONY: all deps test-deps apt build lint test test-hardware verify-unit demo bench deb firmware clean
 
 all: build
 
@@ -60,12 +60,14 @@ build: deps
 CLIPPY_DRIVER := $(shell command -v clippy-driver 2>/dev/null)
 LINTED := RUSTC_WORKSPACE_WRAPPER=$(CLIPPY_DRIVER) CLIPPY_ARGS=-D__CLIPPY_HACKERY__warnings__CLIPPY_HACKERY__
 
-# Formatting, then the tested configuration (the test hooks on) built and linted with
-# every target: the library, the binary, the unit and integration tests, the benchmarks.
+# Formatting, then every target built and linted: the library, the binary, the unit and
+# integration tests, the benchmarks. What the tests run is what ships: no feature or
+# hook of the tests is compiled into the program (the tests stand in through its
+# configuration, e.g. `[worker] program`).
 lint: deps
 	@[ -n "$(CLIPPY_DRIVER)" ] || { echo "clippy is not installed: rustup component add clippy"; exit 1; }
 	$(CARGO) fmt --check
-	$(LINTED) $(CARGO) build --locked --profile ci --all-targets --features test-hooks
+	$(LINTED) $(CARGO) build --locked --profile ci --all-targets
 
 # Lint, then every test, compiled once: the `ci` profile optimises (the known-answer
 # tests are heavy) and keeps debug assertions and overflow checks on.
@@ -73,23 +75,11 @@ lint: deps
 # of its own catches it stops the run with a line saying so, rather than the CI job's
 # own limit ending it without one.
 TEST_LIMIT_S ?= 2700
-test: test-deps lint shipped
-	@$(LINTED) timeout --kill-after=60 $(TEST_LIMIT_S) $(CARGO) test --locked --profile ci --features test-hooks; rc=$$?; \
+test: test-deps lint
+	@$(LINTED) timeout --kill-after=60 $(TEST_LIMIT_S) $(CARGO) test --locked --profile ci; rc=$$?; \
 	if [ $$rc -eq 124 ] || [ $$rc -eq 137 ]; then echo "make test: stopped after $(TEST_LIMIT_S) s (TEST_LIMIT_S): a test hung"; fi; \
 	exit $$rc
 	@$(MAKE) --no-print-directory verify-unit
-
-# What ships, not only what is tested: the library and binary without the test hooks (the
-# `ci` profile: release code with debug assertions) built, linted, and run through the
-# station demo on three captures (the daemon, replay cameras, the simulated trigger box,
-# processing and the posture model), with a limit of its own.
-shipped: deps
-	@[ -n "$(CLIPPY_DRIVER)" ] || { echo "clippy is not installed: rustup component add clippy"; exit 1; }
-	$(LINTED) $(CARGO) build --locked --profile ci --bin conformd
-	@d=$$(mktemp -d); \
-	if timeout --kill-after=10 600 target/ci/conformd demo station --captures 3 --out $$d/demo > $$d/log 2>&1; then \
-	  tail -n 4 $$d/log; rm -rf $$d; echo "shipped configuration: built without the test hooks, the station demo ran"; \
-	else rc=$$?; cat $$d/log; rm -rf $$d; echo "shipped configuration: the station demo failed ($$rc)"; exit 1; fi
 
 # systemd-analyze verify on the units (where systemd is), pointing at the binary just built.
 verify-unit:
@@ -104,7 +94,7 @@ verify-unit:
 
 # On a station with cameras: the test that needs a real V4L2 device (ignored by `test`).
 test-hardware: deps
-	$(LINTED) $(CARGO) test --locked --profile ci --features test-hooks --test all v4l2_hardware:: -- --ignored
+	$(LINTED) $(CARGO) test --locked --profile ci --test all v4l2_hardware:: -- --ignored
 
 # The Debian package of the release build (packaging/deb/build.sh), checked by lintian:
 # target/debian/conformd_<version>-1_<arch>.deb, installed with `apt install ./...deb`.

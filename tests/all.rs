@@ -1,7 +1,7 @@
 //! The one integration-test binary: every file beside this one is a module of it (one
 //! link of the library, OpenCV, tokio and PostgreSQL instead of one per file), the
 //! helpers they share in `common/`. Run one file's tests with
-//! `cargo test --profile ci --features test-hooks --test all <file>::`.
+//! `cargo test --profile ci --test all <file>::`.
 
 mod common;
 

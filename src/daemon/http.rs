@@ -495,38 +495,11 @@ async fn capture_file(
 
 /// The capture page's 3D viewer (`viewer.js`, built into the binary).
 async fn viewer_js() -> Response {
-    static SCRIPT: std::sync::LazyLock<String> = std::sync::LazyLock::new(|| {
-        let whole = include_str!("viewer.js");
-        if cfg!(feature = "test-hooks") {
-            whole.to_string()
-        } else {
-            without_test_hooks(whole)
-        }
-    });
     (
         [(header::CONTENT_TYPE, "text/javascript; charset=utf-8")],
-        SCRIPT.as_str(),
+        include_str!("viewer.js"),
     )
         .into_response()
-}
-
-/// A script without its `// test-hooks:begin` ... `// test-hooks:end` parts (the
-/// viewer benchmark's frame timer): what a release build serves.
-fn without_test_hooks(script: &str) -> String {
-    let mut out = String::with_capacity(script.len());
-    let mut hook = false;
-    for line in script.lines() {
-        let t = line.trim();
-        if t.starts_with("// test-hooks:begin") {
-            hook = true;
-        } else if t.starts_with("// test-hooks:end") {
-            hook = false;
-        } else if !hook {
-            out.push_str(line);
-            out.push('\n');
-        }
-    }
-    out
 }
 
 /// Where Debian's libjs-three puts three.js: the viewer uses the system's copy, which
@@ -1485,19 +1458,4 @@ async fn export(Ctx(shared): Ctx<Arc<Shared>>) -> Api<Response> {
         csv,
     )
         .into_response())
-}
-
-#[cfg(test)]
-mod tests {
-    #[test]
-    fn a_release_build_serves_the_viewer_without_its_benchmark_hook() {
-        let whole = include_str!("viewer.js");
-        assert!(whole.contains("timeFrames"));
-        let shipped = super::without_test_hooks(whole);
-        assert!(!shipped.contains("timeFrames") && !shipped.contains("test-hooks"));
-        // the rest is all there: the page still reports ready, lines unchanged
-        assert!(shipped.contains("box.dataset.state = \"ready\";"));
-        let dropped = whole.lines().count() - shipped.lines().count();
-        assert!((10..30).contains(&dropped), "{dropped} lines dropped");
-    }
 }

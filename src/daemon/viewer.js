@@ -232,22 +232,9 @@
     box.dataset.measurements = state.measurements.length;
     // since the page was asked for: what the viewer benchmark reports
     box.dataset.loadMs = Math.round(performance.now());
-    // test-hooks:begin (served only by a build with the test-hooks feature)
-    // n frames drawn at once while the view turns once round, for the benchmark
-    state.timeFrames = (n, moving) => {
-      lod(!!moving);
-      const gl = renderer.getContext(), px = new Uint8Array(4), t0 = performance.now();
-      for (let i = 0; i < n; i++) {
-        camera.position.sub(controls.target).applyAxisAngle(camera.up, (2 * Math.PI) / n).add(controls.target);
-        camera.lookAt(controls.target);
-        renderer.render(scene, camera);
-        gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.UNSIGNED_BYTE, px); // waits for the frame
-      }
-      lod(false);
-      render();
-      return (performance.now() - t0) / n;
-    };
-    // test-hooks:end
+    // the three.js objects and the moving-view switch, for a script that drives the
+    // view (the viewer benchmark turns the camera and times frames with them)
+    state.three = { renderer, scene, camera, controls, moving: lod, render };
     box.dataset.state = "ready";
     render();
   }).catch((e) => fail(e.message));

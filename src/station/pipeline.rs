@@ -311,7 +311,6 @@ impl Processed {
             for (name, bytes) in &files {
                 let p = tmp.join(name);
                 write_synced(&p, bytes).map_err(|e| fail(&p, e))?;
-                pause_for_crash_tests();
             }
             sync_dir(&tmp);
             Ok(tmp.clone())
@@ -392,25 +391,6 @@ pub fn remove_partial_results(results: &Path) -> std::io::Result<usize> {
         }
     }
     Ok(n)
-}
-
-/// Crash-safety tests kill a process while it writes a result; this environment
-/// variable (milliseconds) widens the window between files so the kill lands inside it
-/// (feature `test-hooks` only).
-#[cfg(feature = "test-hooks")]
-const PAUSE_ENV: &str = "CONFORMD_TEST_PAUSE_WRITE_MS";
-
-#[cfg(not(feature = "test-hooks"))]
-fn pause_for_crash_tests() {}
-
-#[cfg(feature = "test-hooks")]
-fn pause_for_crash_tests() {
-    if let Some(ms) = std::env::var(PAUSE_ENV)
-        .ok()
-        .and_then(|v| v.parse::<u64>().ok())
-    {
-        std::thread::sleep(std::time::Duration::from_millis(ms.min(10_000)));
-    }
 }
 
 fn unique() -> u128 {

@@ -61,6 +61,9 @@ impl Browser {
         }
         let caps = serde_json::json!({"capabilities": {"alwaysMatch": {
             "browserName": "chrome",
+            // a script may draw many frames on the CPU (the viewer benchmark's 36 of a
+            // 400k-point scan); under the HTTP client's 120 s
+            "timeouts": {"script": 100_000},
             "goog:chromeOptions": {"args": [
                 "--headless=new", "--no-sandbox", "--disable-gpu", "--no-first-run",
                 "--disable-background-networking", "--disable-component-update",

@@ -18,7 +18,6 @@ pub fn run(a: ProcessArgs) -> Result<(), commands::CommandError> {
     if let Some(pid) = parent {
         crate::cli::exit_with_parent(pid);
     }
-    crate::cli::crash_hook(&capture);
     let write = if stage {
         commands::Write::Stage
     } else {
