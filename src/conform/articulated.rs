@@ -221,6 +221,7 @@ fn proxies(mesh: &Mesh, count: usize) -> Vec<Proxy> {
 
 /// The rig restricted to the proxies: their rest positions, weights, normals and shape
 /// offsets, posed without touching the other vertices.
+#[derive(Clone)]
 struct ProxyRig<'a> {
     rig: &'a TemplateRig,
     rest: Vec<V3>,
@@ -389,6 +390,7 @@ struct State {
 
 /// The parameters one step changes: the placement (rotation about the proxies' centroid,
 /// translation, log scale), each turning bone's turn, each shape factor.
+#[derive(Clone)]
 struct Params {
     free_bones: Vec<usize>,
     shapes: usize,
@@ -494,6 +496,7 @@ fn trimmed_mean(mut d: Vec<f64>) -> f64 {
 }
 
 /// One fit's fixed parts: the proxies, the parameters, the scan samples and weights.
+#[derive(Clone)]
 struct Problem<'a> {
     rig: &'a TemplateRig,
     prig: ProxyRig<'a>,
@@ -1061,7 +1064,7 @@ pub fn fit(
     let first_mark = px.len();
     px.extend(marks.iter().map(|&(vertex, _)| Proxy { vertex, area: 0.0 }));
     let samples = scan_samples(surface, s);
-    let mut problem = Problem {
+    let problem = Problem {
         rig,
         prig: ProxyRig::new(rig, template, &px),
         params: Params {
@@ -1104,17 +1107,25 @@ pub fn fit(
     let bent = (s.bent_arms_start && marks.is_empty())
         .then(|| bent_arms(rig, &st))
         .flatten();
-    let rest_turns = RigPose::rest(rig).turns;
+    // the starts are fitted side by side (their steps' own loops leave cores idle)
+    let starts: Vec<(State, bool)> = std::iter::once((st, false))
+        .chain(bent.map(|b| (b, true)))
+        .collect();
+    let fitted: Vec<(State, bool, (f64, f64, f64))> = starts
+        .into_par_iter()
+        .map(|(st, from_bent)| {
+            let mut problem = problem.clone();
+            if from_bent {
+                problem.prior_turns = st.pose.turns.clone();
+            }
+            let st = problem.fit_scan(st, marks.is_empty());
+            let figures = problem.figures(&st);
+            (st, from_bent, figures)
+        })
+        .collect();
     let mut best: Option<(State, bool, (f64, f64, f64))> = None;
     let score = |f: &(f64, f64, f64)| f.0 + f.1;
-    for (st, from_bent) in std::iter::once((st, false)).chain(bent.map(|b| (b, true))) {
-        problem.prior_turns = if from_bent {
-            st.pose.turns.clone()
-        } else {
-            rest_turns.clone()
-        };
-        let st = problem.fit_scan(st, marks.is_empty());
-        let figures = problem.figures(&st);
+    for (st, from_bent, figures) in fitted {
         if best.as_ref().is_none_or(|b| score(&figures) < score(&b.2)) {
             best = Some((st, from_bent, figures));
         }

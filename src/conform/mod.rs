@@ -1201,10 +1201,15 @@ fn automatic_hypotheses(
         );
         Hypothesis { x, sim: *s, turns }
     };
-    let mut h = vec![placed(&sim)];
-    if let (Some(r), true) = (runner_up, default_method) {
-        h.push(placed(&r));
-    }
+    // the placements are searched (and their rigs fitted, below) side by side: each
+    // search's and fit's own parallel loops leave cores idle
+    let h = match (runner_up, default_method) {
+        (Some(r), true) => {
+            let (a, b) = rayon::join(|| placed(&sim), || placed(&r));
+            vec![a, b]
+        }
+        _ => vec![placed(&sim)],
+    };
     rep.limbs_found = found.len();
     times.limbs = t.elapsed().as_secs_f64();
     let t = Instant::now();
@@ -1220,7 +1225,7 @@ fn automatic_hypotheses(
     let settings = articulated::ArticulatedSettings::default();
     let fit_rig = articulated::FitRig::new(rig, template, &settings);
     let fits: Vec<articulated::Articulated> = h
-        .iter()
+        .par_iter()
         .map(|guess| {
             articulated::fit(
                 template,
