@@ -77,6 +77,10 @@ pub enum CommandError {
     Template(#[from] crate::template::TemplateError),
     #[error("{0}")]
     Usage(String),
+    /// the operator's landmarks file of the capture being processed: a file that is
+    /// not one (a pipe, garbled lines) is the capture's fault, not the machine's
+    #[error("{0}")]
+    Landmarks(mesh::FileError),
     #[error("{path}: {source}")]
     Io {
         path: String,

@@ -119,7 +119,10 @@ pub fn process(
     progress: &mut (dyn FnMut(Progress) + Send),
 ) -> Result<(PathBuf, ProcessReport), CommandError> {
     crate::files::refuse_inside(out, capture, "the capture set")?;
-    let landmarks = landmarks.map(crate::mesh::read_landmarks).transpose()?;
+    let landmarks = landmarks
+        .map(crate::mesh::read_landmarks)
+        .transpose()
+        .map_err(CommandError::Landmarks)?;
     let cfg = StationConfig::load(config)?;
     let mut pipeline = Pipeline::from_config_cached(&cfg, template_cache)?;
     let mut control = Control {
@@ -152,6 +155,14 @@ pub fn process_outcome(
     match r {
         Ok((dir, report)) => ProcessOutcome::done(dir.clone(), report, write == Write::Stage),
         Err(CommandError::Stage(s)) => ProcessOutcome::failed(s),
+        // retried only when reading failed (the file may come back whole); its content
+        // or kind stays wrong however often it is read
+        Err(CommandError::Landmarks(e)) => ProcessOutcome::failed_at(
+            None,
+            Stage::Setup,
+            !matches!(e, crate::mesh::FileError::Io { .. }),
+            e.to_string(),
+        ),
         Err(e) => ProcessOutcome::failed_at(None, Stage::Setup, false, e.to_string()),
     }
 }
