@@ -8,10 +8,11 @@ use crate::common;
 use common::free_port;
 
 use crate::common::postgres::TempPostgres;
+use common::GroupChild as Child;
 use conformd::daemon::journal::{self, State};
 use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 const BIN: &str = env!("CARGO_BIN_EXE_conformd");
@@ -76,6 +77,7 @@ fn spawn_with_job_s(args: &[&str], log: &Path, job_s: f64) -> Child {
         // its own process group: killing it kills its job too, as a machine that dies
         .process_group(0)
         .spawn()
+        .map(Child::new)
         .unwrap()
 }
 
@@ -193,8 +195,11 @@ fn a_worker_that_stalls_past_its_lease_finds_its_job_taken_and_discards_its_resu
     for w in workers {
         signal(w.id(), "-TERM");
         // a worker that ignores SIGTERM fails here rather than hanging the suite
-        let status =
-            common::deadline::status_of(w, "a worker told to stop", Duration::from_secs(60));
+        let status = common::deadline::status_of(
+            w.into_inner(),
+            "a worker told to stop",
+            Duration::from_secs(60),
+        );
         assert!(status.success(), "{status}");
     }
 }
@@ -503,20 +508,15 @@ fn a_journal_server_that_never_answers_hangs_neither_the_worker_nor_the_daemon()
     let url = format!("postgres://conformd@127.0.0.1:{db_port}/conformd");
     let limit = journal::HANDSHAKE_LIMIT.as_secs_f64();
 
-    let dir = tempfile::tempdir().unwrap();
-    let cfg = config(dir.path(), &url, None, "");
-    let log = dir.path().join("worker.log");
+    // the worker and the daemon wait out their handshakes side by side
+    let worker_dir = tempfile::tempdir().unwrap();
+    let cfg = config(worker_dir.path(), &url, None, "");
+    let worker_log = worker_dir.path().join("worker.log");
     let t = Instant::now();
-    let mut worker = spawn(&["worker", "--config", &cfg.display().to_string()], &log);
-    wait_until("the worker to give up", limit * 3.0, || {
-        worker.try_wait().unwrap().is_some()
-    });
-    let text = std::fs::read_to_string(&log).unwrap();
-    assert!(
-        !worker.wait().unwrap().success() && text.contains("has not answered its handshake"),
-        "{text}"
+    let mut worker = spawn(
+        &["worker", "--config", &cfg.display().to_string()],
+        &worker_log,
     );
-    assert!(t.elapsed().as_secs_f64() < limit * 3.0);
 
     let dir = tempfile::tempdir().unwrap();
     let port = free_port();
@@ -528,6 +528,17 @@ fn a_journal_server_that_never_answers_hangs_neither_the_worker_nor_the_daemon()
     let cfg = config(dir.path(), &url, None, &extra);
     let log = dir.path().join("daemon.log");
     let mut daemon = spawn(&["daemon", "--config", &cfg.display().to_string()], &log);
+
+    wait_until("the worker to give up", limit * 3.0, || {
+        worker.try_wait().unwrap().is_some()
+    });
+    let text = std::fs::read_to_string(&worker_log).unwrap();
+    assert!(
+        !worker.wait().unwrap().success() && text.contains("has not answered its handshake"),
+        "{text}"
+    );
+    assert!(t.elapsed().as_secs_f64() < limit * 3.0);
+
     wait_until("the daemon's API", limit * 4.0, || {
         status(port).is_some_and(|s| {
             s["journal"]["online"] == false

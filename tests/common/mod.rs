@@ -10,6 +10,50 @@ use conformd::synth::cases::Case;
 #[allow(unused_imports)]
 pub use deadline::{CHILD_LIMIT, Deadline};
 
+/// A program started in its own process group (`process_group(0)`), killed with its
+/// group when the test ends, passing or failing, so no worker, daemon or job of theirs
+/// outlives the test.
+pub struct GroupChild(Option<std::process::Child>);
+
+impl GroupChild {
+    pub fn new(child: std::process::Child) -> Self {
+        GroupChild(Some(child))
+    }
+
+    /// The child itself, no longer killed on drop (for a caller that waits it out
+    /// within its own deadline).
+    pub fn into_inner(mut self) -> std::process::Child {
+        self.0.take().expect("a child")
+    }
+}
+
+impl std::ops::Deref for GroupChild {
+    type Target = std::process::Child;
+    fn deref(&self) -> &Self::Target {
+        self.0.as_ref().expect("a child")
+    }
+}
+
+impl std::ops::DerefMut for GroupChild {
+    fn deref_mut(&mut self) -> &mut Self::Target {
+        self.0.as_mut().expect("a child")
+    }
+}
+
+impl Drop for GroupChild {
+    fn drop(&mut self) {
+        let Some(child) = self.0.as_mut() else {
+            return;
+        };
+        // the group may outlive its leader (a job of a killed worker)
+        let _ = std::process::Command::new("kill")
+            .args(["-KILL", "--", &format!("-{}", child.id())])
+            .stderr(std::process::Stdio::null())
+            .status();
+        let _ = child.wait();
+    }
+}
+
 /// `out`, when its command succeeded; otherwise the test fails with the command's
 /// exit status and standard error (what a person reads first).
 pub fn succeeded(out: std::process::Output) -> std::process::Output {
