@@ -6,7 +6,7 @@
 //! scipy, rtree) on the 11k case in the same run and prints the speed ratio;
 //! `-- --only TEXT` runs the cases whose label holds TEXT (e.g. `rig`, for a profiler).
 
-use conformd::conform::{ConformOptions, Conformed, conform, conform_rigged};
+use conformd::conform::{ConformOptions, Conformed, GlobalReport, conform, conform_rigged};
 use conformd::synth::cases::{self, ArticulatedSpec, Case};
 use conformd::synth::devset;
 use conformd::template::rig::TemplateRig;
@@ -107,6 +107,26 @@ fn bench_rigged(
         r.report.iterations.len(),
         e.mean * 100.0,
     );
+    if let GlobalReport::Automatic(a) = &r.report.global {
+        println!(
+            "{:<34} placements fitted {}, kept {}{}",
+            "",
+            a.articulated
+                .as_ref()
+                .map_or(a.fitted, |x| x.hypotheses.len()),
+            a.kept,
+            a.articulated.as_ref().map_or(String::new(), |x| format!(
+                ", the rig's start {}",
+                if x.kept_limb_search {
+                    "not kept (the limb search's)"
+                } else if x.bent_arms_start {
+                    "with the forearms bent"
+                } else {
+                    "from the limb search"
+                }
+            ))
+        );
+    }
     times[times.len() / 2]
 }
 
