@@ -958,8 +958,9 @@ impl<'a> ChainCost<'a> {
 
     /// The cost of `st`, which differs from the state this was made for only in the
     /// chain's turns; with `stride` over 1, the chain's distances to the scan are those
-    /// of every `stride`-th of its proxies, weighted up to the chain's area (a price
-    /// for sorting candidates, about `stride` times cheaper).
+    /// of every `stride`-th of its proxies, weighted up to the chain's area, and the
+    /// scan's to the template those of every `stride`-th sample (a price for sorting
+    /// candidates, about `stride` times cheaper).
     fn of(&self, st: &State, stride: usize) -> f64 {
         let p = self.problem;
         let x = p.prig.pose_some(st, &self.moving);
@@ -976,24 +977,29 @@ impl<'a> ChainCost<'a> {
         // keeps its distance: no query
         let (lo, hi) = crate::mesh::bounds(x.iter().copied())
             .unwrap_or((V3::repeat(f64::INFINITY), V3::repeat(f64::NEG_INFINITY)));
-        let from_scan: f64 = p
+        let (mut from_scan, mut counted) = (0.0, 0usize);
+        for (&k, &still) in p
             .samples
             .iter()
             .zip(&self.still_from_scan)
-            .map(|(&k, &still)| {
+            .step_by(stride.max(1))
+        {
+            counted += 1;
+            from_scan += {
                 let q = p.surface.points[k];
                 let outside = (lo - q).sup(&(q - hi)).sup(&V3::zeros());
                 if outside.norm_squared() >= still * still {
-                    return still;
+                    still
+                } else {
+                    let d = tree
+                        .nearest_one::<SquaredEuclidean>(&[q.x, q.y, q.z])
+                        .distance
+                        .sqrt();
+                    d.min(still)
                 }
-                let d = tree
-                    .nearest_one::<SquaredEuclidean>(&[q.x, q.y, q.z])
-                    .distance
-                    .sqrt();
-                d.min(still)
-            })
-            .sum::<f64>();
-        to_scan / self.total_area + from_scan / p.samples.len().max(1) as f64
+            };
+        }
+        to_scan / self.total_area + from_scan / counted.max(1) as f64
     }
 }
 
