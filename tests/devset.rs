@@ -130,14 +130,21 @@ const HARD_BOUNDS: &Bounds = &[
     ("man large posture, none", 0.57, 1.47, 2),
     ("man dense uneven, landmarks", 0.95, 2.55, 2),
     ("man dense uneven, none", 0.69, 2.29, 2),
+    // eyeballs finer than the scan (2,562 vertices each) inside the head: placed with
+    // the head (before: the fold repair turned 93 of their triangles back)
+    ("man with eyes, landmarks", 0.69, 1.30, 2),
+    ("man with eyes, none", 0.35, 1.08, 2),
     ("cow large posture, landmarks", 1.18, 2.86, 15),
     ("cow large posture, none", 1.28, 3.72, 2),
     ("koala 50k large posture, landmarks", 0.47, 1.23, 25),
     ("koala 50k large posture, none", 0.75, 2.93, 73),
     ("man onto woman, landmarks", 1.15, 2.82, 3),
     ("man onto woman, none", 0.55, 1.32, 2),
-    ("SMPL-X dense uneven, landmarks", 0.38, 0.78, 1404),
-    ("SMPL-X dense uneven, none", 0.27, 0.64, 1019),
+    // its eyeballs placed with the head (before: 981-1,024 and 815 flipped, all of
+    // the latter on one eye); with landmarks the rest are on an ear and the fingers
+    // (145-196 over four runs: the sums' order varies)
+    ("SMPL-X dense uneven, landmarks", 0.38, 0.78, 300),
+    ("SMPL-X dense uneven, none", 0.27, 0.60, 2),
 ];
 
 fn bound(table: &Bounds, name: &str) -> (&'static str, f64, f64, usize) {
@@ -177,6 +184,32 @@ fn the_harder_set_holds_per_case() {
             );
             let (_, mean, p95, flips) = bound(HARD_BOUNDS, &c.name);
             seen += 1;
+            if c.name.starts_with("man with eyes") {
+                // each eyeball placed whole with what surrounds it: its rest shape
+                // under one similarity, however the fit drew on it
+                let eyes =
+                    topology::enclosed_parts(&case.template.vertices, &case.template.triangles);
+                assert_eq!(eyes.len(), 2, "{}", c.name);
+                assert_eq!(r.report.enclosed_vertices, 2 * 2562, "{}", c.name);
+                for eye in &eyes {
+                    let rest: Vec<_> = eye
+                        .iter()
+                        .map(|&i| case.template.vertices[i as usize])
+                        .collect();
+                    let now: Vec<_> = eye.iter().map(|&i| r.mesh.vertices[i as usize]).collect();
+                    let sim = conformd::mesh::transform::fit_similarity(&rest, &now, None, true);
+                    let off = rest
+                        .iter()
+                        .zip(&now)
+                        .map(|(a, b)| (sim.apply(a) - b).norm())
+                        .fold(0.0, f64::max);
+                    assert!(
+                        off < 1e-9 * r.mesh.diagonal(),
+                        "{}: an eye bent by {off}",
+                        c.name
+                    );
+                }
+            }
             if c.name.contains("dense uneven, none") {
                 // these templates have no rig: one is found on them, and its fit (not
                 // the limb search's start) goes on to the elastic fit

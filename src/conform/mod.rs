@@ -502,6 +502,9 @@ pub struct ConformReport {
     pub folded_triangles: usize,
     /// what the fold repair found and left (absent when it did not run)
     pub fold_repair: Option<FoldRepair>,
+    /// vertices of parts the template holds inside itself (eyeballs, teeth), placed
+    /// with what surrounds them rather than fitted ([`place_enclosed`])
+    pub enclosed_vertices: usize,
     pub matched: usize,
     pub filled: usize,
     pub mean_distance: f64,
@@ -1070,6 +1073,8 @@ fn finish(
         ..
     } = best;
     let diag = fit.diag;
+    let enclosed = topology::enclosed_parts(&template.vertices, &template.triangles);
+    place_enclosed(template, &enclosed, &mut x);
     let fold_repair = (opts.repair_folds && opts.method == Method::Default).then(|| {
         let t = Instant::now();
         let r = fit.repair_folds(&mut x);
@@ -1123,6 +1128,7 @@ fn finish(
         placement_warning: placement,
         folded_triangles: quality::folded_triangles(&mesh),
         fold_repair,
+        enclosed_vertices: enclosed.iter().map(Vec::len).sum(),
         matched: fin.matched,
         filled: n - fin.matched,
         mean_distance: fin.mean_distance,
@@ -1134,6 +1140,58 @@ fn finish(
         seconds: times,
     };
     Ok(Conformed { mesh, report })
+}
+
+/// Each part the template holds inside itself (`topology::enclosed_parts`) moved as a
+/// whole by the similarity that takes what surrounds it (the other vertices within
+/// twice the part's radius of its centre, at rest, or its 64 nearest) where the fit put
+/// them. No camera sees such a part, and the springs do not join it to the rest: fitted
+/// on its own it was pulled inside out onto the surface around it (a body model's
+/// eyeball onto the eyelids).
+fn place_enclosed(template: &Mesh, parts: &[Vec<u32>], x: &mut [V3]) {
+    if parts.is_empty() {
+        return;
+    }
+    let rest = &template.vertices;
+    let mut inside = vec![false; rest.len()];
+    for &i in parts.iter().flatten() {
+        inside[i as usize] = true;
+    }
+    let around: Vec<usize> = (0..rest.len()).filter(|&i| !inside[i]).collect();
+    if around.len() < 3 {
+        return;
+    }
+    let arr: Vec<[f64; 3]> = around.iter().map(|&i| rest[i].into()).collect();
+    let tree: kiddo::ImmutableKdTree<f64, 3> = kiddo::ImmutableKdTree::new_from_slice(&arr);
+    for part in parts {
+        let c = part.iter().map(|&i| rest[i as usize]).sum::<V3>() / part.len() as f64;
+        let r = part
+            .iter()
+            .map(|&i| (rest[i as usize] - c).norm())
+            .fold(0.0, f64::max);
+        let reach = 2.0 * r;
+        let mut near: Vec<usize> = tree
+            .within_unsorted::<kiddo::SquaredEuclidean>(&c.into(), reach * reach)
+            .iter()
+            .map(|m| around[m.item as usize])
+            .collect();
+        if near.len() < 64 {
+            near = tree
+                .nearest_n::<kiddo::SquaredEuclidean>(
+                    &c.into(),
+                    std::num::NonZero::new(64).unwrap(),
+                )
+                .iter()
+                .map(|m| around[m.item as usize])
+                .collect();
+        }
+        let src: Vec<V3> = near.iter().map(|&i| rest[i]).collect();
+        let dst: Vec<V3> = near.iter().map(|&i| x[i]).collect();
+        let sim = fit_similarity(&src, &dst, None, true);
+        for &i in part {
+            x[i as usize] = sim.apply(&rest[i as usize]);
+        }
+    }
 }
 
 /// Section 2.1: the template mapped onto the scan by the landmark RBF, or (without

@@ -216,6 +216,62 @@ pub fn components(nv: usize, tris: &[[u32; 3]]) -> (Vec<u32>, usize) {
     (label, count as usize)
 }
 
+/// See [`enclosed_parts`].
+pub const ENCLOSED_PARTS_MAX_COMPONENTS: usize = 64;
+
+/// The loose parts a mesh holds inside itself (a body model's eyeballs, teeth or
+/// tongue): each connected component whose area-weighted centre lies inside the rest of
+/// the mesh (generalised winding number over the other components' triangles above a
+/// half). Each part is its vertices, sorted. A camera never sees such a part from
+/// outside, so no scan can say where it goes; it follows what surrounds it. A mesh in
+/// more than [`ENCLOSED_PARTS_MAX_COMPONENTS`] pieces (a scan triangulated per pod) is
+/// not searched: each piece costs a pass over every triangle.
+pub fn enclosed_parts(v: &[crate::mesh::V3], tris: &[[u32; 3]]) -> Vec<Vec<u32>> {
+    use crate::mesh::V3;
+    use rayon::prelude::*;
+    let (label, count) = components(v.len(), tris);
+    if !(2..=ENCLOSED_PARTS_MAX_COMPONENTS).contains(&count) {
+        return Vec::new();
+    }
+    let mut centre = vec![(V3::zeros(), 0.0); count];
+    for t in tris {
+        let [a, b, c] = t.map(|i| v[i as usize]);
+        let area = (b - a).cross(&(c - a)).norm() / 2.0;
+        let k = label[t[0] as usize] as usize;
+        centre[k].0 += (a + b + c) / 3.0 * area;
+        centre[k].1 += area;
+    }
+    // the solid angle of each other component's triangles seen from the centre
+    // (Van Oosterom and Strackee), summed over 4 pi
+    let winding = |k: usize, p: &V3| -> f64 {
+        tris.par_iter()
+            .filter(|t| label[t[0] as usize] as usize != k)
+            .map(|t| {
+                let [a, b, c] = t.map(|i| v[i as usize] - p);
+                let (la, lb, lc) = (a.norm(), b.norm(), c.norm());
+                let num = a.dot(&b.cross(&c));
+                let den = la * lb * lc + a.dot(&b) * lc + b.dot(&c) * la + c.dot(&a) * lb;
+                2.0 * num.atan2(den)
+            })
+            .sum::<f64>()
+            / (4.0 * std::f64::consts::PI)
+    };
+    let enclosed: Vec<bool> = (0..count)
+        .map(|k| {
+            let (sum, area) = centre[k];
+            area > 0.0 && winding(k, &(sum / area)).abs() > 0.5
+        })
+        .collect();
+    let mut parts = vec![Vec::new(); count];
+    for (i, &l) in label.iter().enumerate() {
+        if enclosed[l as usize] {
+            parts[l as usize].push(i as u32);
+        }
+    }
+    parts.retain(|p| !p.is_empty());
+    parts
+}
+
 /// Bridges between the separate pieces of a fragmented mesh (a scan triangulated per
 /// camera pod, a template with loose parts): each vertex is joined to its nearest vertex
 /// of another component when that lies within `radius`. With them, springs and filling
@@ -506,5 +562,28 @@ mod tests {
         for i in 0..near.len() {
             assert_eq!(near[i].min(full[i]), near[i].min(pruned[i]), "vertex {i}");
         }
+    }
+
+    #[test]
+    fn a_part_inside_the_mesh_is_found_and_one_beside_it_is_not() {
+        let outer = crate::synth::icosphere(2);
+        let small = crate::synth::icosphere(1);
+        let mut m = outer.clone();
+        let mut add = |offset: V3, scale: f64| {
+            let base = m.vertices.len() as u32;
+            m.vertices
+                .extend(small.vertices.iter().map(|p| offset + p * scale));
+            m.triangles
+                .extend(small.triangles.iter().map(|t| t.map(|i| i + base)));
+            base
+        };
+        // an eye: inside, its front poking out through the surface
+        let eye = add(V3::new(0.85, 0.0, 0.0), 0.2);
+        // a part beside the sphere, outside it
+        add(V3::new(3.0, 0.0, 0.0), 0.5);
+        let parts = enclosed_parts(&m.vertices, &m.triangles);
+        let n = small.vertices.len() as u32;
+        assert_eq!(parts, vec![(eye..eye + n).collect::<Vec<u32>>()]);
+        assert!(enclosed_parts(&outer.vertices, &outer.triangles).is_empty());
     }
 }

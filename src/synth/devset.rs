@@ -302,7 +302,17 @@ pub(crate) fn posed(
     diag: f64,
     rng: &mut ChaCha8Rng,
 ) -> (Vec<V3>, Extremities) {
-    let nb = topology::vertex_neighbours(subject.vertices.len(), &subject.triangles);
+    let mut nb = topology::vertex_neighbours(subject.vertices.len(), &subject.triangles);
+    // loose parts (a body model's eyeballs) joined to what they touch, so they turn with
+    // it: along the edges alone a turned head would leave its eyes behind
+    for [a, b] in topology::bridges(
+        &subject.vertices,
+        &subject.triangles,
+        0.01 * subject.diagonal(),
+    ) {
+        nb[a as usize].push(b);
+        nb[b as usize].push(a);
+    }
     let ext: Extremities = posing::extremities(subject, &nb, spec.landmarks.max(spec.pose.limbs));
     let mut truth = posing::pose(subject, &nb, &ext, &spec.pose);
     if spec.heading != 0.0 {
@@ -689,6 +699,41 @@ pub fn dense_uneven_body(mesh: &Mesh) -> Mesh {
     refine(&m, |p| p.z > h(0.6) && p.x > x(0.0))
 }
 
+/// `mesh` (a person, z up, facing the way from the top of the head to the nose tip)
+/// with two eyeballs as loose spheres of 2,562 vertices (finer than any scan resolves them) in the eye sockets, their fronts
+/// just out through the face, as a body model's are (SMPL-X): 3.2 cm either side of
+/// the face's middle, 4 cm above the nose tip and 2 cm behind it, 1.25 cm across.
+pub fn with_eyes(mesh: &Mesh, nose_tip: usize, head_top: usize) -> Mesh {
+    let (nose, top) = (mesh.vertices[nose_tip], mesh.vertices[head_top]);
+    let up = V3::z();
+    let ahead = {
+        let d = nose - top;
+        (d - up * d.dot(&up)).normalize()
+    };
+    let side = up.cross(&ahead);
+    let normals = mesh.vertex_normals();
+    let ball = super::icosphere(4);
+    let radius = 0.0125;
+    let mut out = mesh.clone();
+    for sign in [-1.0, 1.0] {
+        let guess = nose + up * 0.04 - ahead * 0.02 + side * (0.032 * sign);
+        let (on_face, _) = mesh
+            .vertices
+            .iter()
+            .enumerate()
+            .map(|(i, p)| (i, (p - guess).norm_squared()))
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .expect("a mesh with vertices");
+        let centre = mesh.vertices[on_face] - normals[on_face] * (0.9 * radius);
+        let base = out.vertices.len() as u32;
+        out.vertices
+            .extend(ball.vertices.iter().map(|p| centre + p * radius));
+        out.triangles
+            .extend(ball.triangles.iter().map(|t| t.map(|i| i + base)));
+    }
+    out
+}
+
 /// The large posture of the harder set: 8 extremities tried as limbs, turned 45-90
 /// degrees; the whole bent 20 and twisted 15 degrees, scaled 1.05, turned to `heading`.
 pub fn large_posture(seed: u64, heading: f64) -> DevCaseSpec {
@@ -743,6 +788,19 @@ pub fn hard_cases(part: Part, names: &[&str]) -> Result<Vec<DevCase>, String> {
             if want("human-dense") {
                 let dense = dense_uneven_body(&load("human")?);
                 made.push(("man dense uneven".into(), dense, None, large(10, 30.0)));
+            }
+            if want("human-eyes") {
+                // with eyeballs, as the validation part's body model has them
+                let marks = super::semantic::marks_of("human")?;
+                let mark = |name: &str| {
+                    marks
+                        .iter()
+                        .find(|m| m.0 == name)
+                        .map(|m| m.1 as usize)
+                        .ok_or_else(|| format!("human.marks has no {name}"))
+                };
+                let eyed = with_eyes(&load("human")?, mark("nose_tip")?, mark("head_top")?);
+                made.push(("man with eyes".into(), eyed, None, large(11, -20.0)));
             }
         }
         Part::Validation => {
