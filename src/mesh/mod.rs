@@ -143,6 +143,15 @@ impl Mesh {
         let [a, b, c] = self.corners(t);
         (b - a).cross(&(c - a))
     }
+    /// Adds `other` as a loose part of its own, each vertex moved by `place`; returns
+    /// the index of its first vertex here. Groups and normals are not carried.
+    pub fn append(&mut self, other: &Mesh, place: impl Fn(&V3) -> V3) -> u32 {
+        let base = self.vertices.len() as u32;
+        self.vertices.extend(other.vertices.iter().map(place));
+        self.triangles
+            .extend(other.triangles.iter().map(|t| t.map(|i| i + base)));
+        base
+    }
 
     /// Area-weighted vertex normals, unit length (zero for isolated vertices).
     pub fn vertex_normals(&self) -> Vec<V3> {

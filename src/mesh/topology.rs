@@ -569,18 +569,10 @@ mod tests {
         let outer = crate::synth::icosphere(2);
         let small = crate::synth::icosphere(1);
         let mut m = outer.clone();
-        let mut add = |offset: V3, scale: f64| {
-            let base = m.vertices.len() as u32;
-            m.vertices
-                .extend(small.vertices.iter().map(|p| offset + p * scale));
-            m.triangles
-                .extend(small.triangles.iter().map(|t| t.map(|i| i + base)));
-            base
-        };
         // an eye: inside, its front poking out through the surface
-        let eye = add(V3::new(0.85, 0.0, 0.0), 0.2);
+        let eye = m.append(&small, |p| V3::new(0.85, 0.0, 0.0) + p * 0.2);
         // a part beside the sphere, outside it
-        add(V3::new(3.0, 0.0, 0.0), 0.5);
+        m.append(&small, |p| V3::new(3.0, 0.0, 0.0) + p * 0.5);
         let parts = enclosed_parts(&m.vertices, &m.triangles);
         let n = small.vertices.len() as u32;
         assert_eq!(parts, vec![(eye..eye + n).collect::<Vec<u32>>()]);

@@ -725,11 +725,7 @@ pub fn with_eyes(mesh: &Mesh, nose_tip: usize, head_top: usize) -> Mesh {
             .min_by(|a, b| a.1.total_cmp(&b.1))
             .expect("a mesh with vertices");
         let centre = mesh.vertices[on_face] - normals[on_face] * (0.9 * radius);
-        let base = out.vertices.len() as u32;
-        out.vertices
-            .extend(ball.vertices.iter().map(|p| centre + p * radius));
-        out.triangles
-            .extend(ball.triangles.iter().map(|t| t.map(|i| i + base)));
+        out.append(&ball, |p| centre + p * radius);
     }
     out
 }
