@@ -218,11 +218,15 @@ pub fn components(nv: usize, tris: &[[u32; 3]]) -> (Vec<u32>, usize) {
 
 /// See [`enclosed_parts`].
 pub const ENCLOSED_PARTS_MAX_COMPONENTS: usize = 64;
+/// A part larger than this share of the mesh's area is a layer of its own (a body
+/// inside its clothes), not a loose part: [`enclosed_parts`] leaves it out.
+pub const ENCLOSED_PART_MAX_AREA_SHARE: f64 = 0.1;
 
 /// The loose parts a mesh holds inside itself (a body model's eyeballs, teeth or
 /// tongue): each connected component whose area-weighted centre lies inside the rest of
 /// the mesh (generalised winding number over the other components' triangles above a
-/// half). Each part is its vertices, sorted. A camera never sees such a part from
+/// half), and at most [`ENCLOSED_PART_MAX_AREA_SHARE`] of the area. Each part is its
+/// vertices, sorted. A camera never sees such a part from
 /// outside, so no scan can say where it goes; it follows what surrounds it. A mesh in
 /// more than [`ENCLOSED_PARTS_MAX_COMPONENTS`] pieces (a scan triangulated per pod) is
 /// not searched: each piece costs a pass over every triangle.
@@ -256,10 +260,13 @@ pub fn enclosed_parts(v: &[crate::mesh::V3], tris: &[[u32; 3]]) -> Vec<Vec<u32>>
             .sum::<f64>()
             / (4.0 * std::f64::consts::PI)
     };
+    let total: f64 = centre.iter().map(|c| c.1).sum();
     let enclosed: Vec<bool> = (0..count)
         .map(|k| {
             let (sum, area) = centre[k];
-            area > 0.0 && winding(k, &(sum / area)).abs() > 0.5
+            area > 0.0
+                && area <= ENCLOSED_PART_MAX_AREA_SHARE * total
+                && winding(k, &(sum / area)).abs() > 0.5
         })
         .collect();
     let mut parts = vec![Vec::new(); count];
@@ -577,5 +584,9 @@ mod tests {
         let n = small.vertices.len() as u32;
         assert_eq!(parts, vec![(eye..eye + n).collect::<Vec<u32>>()]);
         assert!(enclosed_parts(&outer.vertices, &outer.triangles).is_empty());
+        // a whole layer inside (a body inside its clothes) is not a loose part
+        let mut layered = outer.clone();
+        layered.append(&outer, |p| p * 0.9);
+        assert!(enclosed_parts(&layered.vertices, &layered.triangles).is_empty());
     }
 }
