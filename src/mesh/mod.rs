@@ -144,8 +144,10 @@ impl Mesh {
         (b - a).cross(&(c - a))
     }
     /// Adds `other` as a loose part of its own, each vertex moved by `place`; returns
-    /// the index of its first vertex here. Groups and normals are not carried.
+    /// the index of its first vertex here. Its groups are not carried, and stored
+    /// normals are dropped (they would no longer cover every vertex).
     pub fn append(&mut self, other: &Mesh, place: impl Fn(&V3) -> V3) -> u32 {
+        self.normals = None;
         let base = self.vertices.len() as u32;
         self.vertices.extend(other.vertices.iter().map(place));
         self.triangles
