@@ -221,7 +221,6 @@ fn proxies(mesh: &Mesh, count: usize) -> Vec<Proxy> {
 
 /// The rig restricted to the proxies: their rest positions, weights, normals and shape
 /// offsets, posed without touching the other vertices.
-#[derive(Clone)]
 struct ProxyRig<'a> {
     rig: &'a TemplateRig,
     rest: Vec<V3>,
@@ -390,7 +389,6 @@ struct State {
 
 /// The parameters one step changes: the placement (rotation about the proxies' centroid,
 /// translation, log scale), each turning bone's turn, each shape factor.
-#[derive(Clone)]
 struct Params {
     free_bones: Vec<usize>,
     shapes: usize,
@@ -496,7 +494,6 @@ fn trimmed_mean(mut d: Vec<f64>) -> f64 {
 }
 
 /// One fit's fixed parts: the proxies, the parameters, the scan samples and weights.
-#[derive(Clone)]
 struct Problem<'a> {
     rig: &'a TemplateRig,
     prig: ProxyRig<'a>,
@@ -513,9 +510,9 @@ struct Problem<'a> {
     mark_w: f64,
     diag: f64,
     s: ArticulatedSettings,
-    /// the turns the pose prior holds each joint towards: the rest pose's, or the start
-    /// a fit was given ([`bent_arms`])
-    prior_turns: Vec<Rotation3<f64>>,
+    /// the rest pose's turns, which the pose prior holds each joint towards unless a
+    /// start says otherwise ([`bent_arms`])
+    rest_turns: Vec<Rotation3<f64>>,
 }
 
 impl Problem<'_> {
@@ -523,7 +520,8 @@ impl Problem<'_> {
     /// from their values at `phase.0` to those at `phase.1` of the schedule.
     ///
     /// With `targets` (a position per proxy: the template in a guessed posture) the
-    /// steps fit the rig to them instead of to the scan, point to point.
+    /// steps fit the rig to them instead of to the scan, point to point. The pose prior
+    /// holds each joint towards its turn in `prior`.
     fn gauss_newton(
         &self,
         st: &mut State,
@@ -531,6 +529,7 @@ impl Problem<'_> {
         phase: (f64, f64),
         targets: Option<&[V3]>,
         shapes: usize,
+        prior: &[Rotation3<f64>],
     ) {
         let params = &Params {
             free_bones: self.params.free_bones.clone(),
@@ -562,7 +561,7 @@ impl Problem<'_> {
             let cols = self.jacobian(params, &moved_by, st, &x, &centre);
             let (mut jtj, mut jtr) = normal_equations(np, &x, &rows, &cols, p2p, diag);
             let norm = rows.iter().map(|r| r.3).sum::<f64>();
-            self.add_priors(params, st, norm, &mut jtj, &mut jtr);
+            self.add_priors(params, st, prior, norm, &mut jtj, &mut jtr);
             let Some(d) = damped_step(params, jtj, jtr, diag) else {
                 break;
             };
@@ -571,11 +570,12 @@ impl Problem<'_> {
     }
 
     /// The fit to the scan from `st`: Gauss-Newton, each limb chain searched (when
-    /// `search`), Gauss-Newton again with every shape field free.
-    fn fit_scan(&self, mut st: State, search: bool) -> State {
+    /// `search`), Gauss-Newton again with every shape field free; the joints held
+    /// towards `prior`.
+    fn fit_scan(&self, mut st: State, search: bool, prior: &[Rotation3<f64>]) -> State {
         let (s, base_shapes) = (&self.s, self.base_shapes);
         let first = s.iterations / 2;
-        self.gauss_newton(&mut st, first, (0.0, 0.5), None, base_shapes);
+        self.gauss_newton(&mut st, first, (0.0, 0.5), None, base_shapes, prior);
         if s.chain_search && search {
             self.chain_search(&mut st);
         }
@@ -585,6 +585,7 @@ impl Problem<'_> {
             (0.5, 1.0),
             None,
             self.rig.shapes.len(),
+            prior,
         );
         st
     }
@@ -694,19 +695,20 @@ impl Problem<'_> {
             .collect()
     }
 
-    /// The priors: each joint towards its prior turn (the rest pose's, or a given
+    /// The priors: each joint towards its turn in `prior` (the rest pose's, or a given
     /// start's), each factor towards 1, weighted by the rows' total weight `norm`.
     fn add_priors(
         &self,
         params: &Params,
         st: &State,
+        prior: &[Rotation3<f64>],
         norm: f64,
         jtj: &mut DMatrix<f64>,
         jtr: &mut DVector<f64>,
     ) {
         let s = &self.s;
         for (k, &b) in params.free_bones.iter().enumerate() {
-            let v = rotation_vector(&(st.pose.turns[b] * self.prior_turns[b].inverse()));
+            let v = rotation_vector(&(st.pose.turns[b] * prior[b].inverse()));
             for c in 0..3 {
                 let a = 7 + 3 * k + c;
                 jtj[(a, a)] += s.pose_prior * norm;
@@ -1093,7 +1095,7 @@ pub fn fit(
         samples,
         diag: surface.diagonal,
         s: *s,
-        prior_turns: RigPose::rest(rig).turns,
+        rest_turns: RigPose::rest(rig).turns,
     };
     let mut st = State {
         placement: *start,
@@ -1107,6 +1109,7 @@ pub fn fit(
             (0.0, 0.0),
             Some(&targets),
             base_shapes,
+            &problem.rest_turns,
         );
     }
     // a second start only without marks: they say where the arms are
@@ -1120,11 +1123,13 @@ pub fn fit(
     let fitted: Vec<(State, bool, (f64, f64, f64))> = starts
         .into_par_iter()
         .map(|(st, from_bent)| {
-            let mut problem = problem.clone();
-            if from_bent {
-                problem.prior_turns = st.pose.turns.clone();
-            }
-            let st = problem.fit_scan(st, marks.is_empty());
+            // a bent start's prior is the start itself
+            let prior = if from_bent {
+                st.pose.turns.clone()
+            } else {
+                problem.rest_turns.clone()
+            };
+            let st = problem.fit_scan(st, marks.is_empty(), &prior);
             let figures = problem.figures(&st);
             (st, from_bent, figures)
         })
