@@ -589,16 +589,6 @@ fn placement_through_the_cli() {
     assert!(!d.join("x.toml").exists());
 }
 
-/// Kills the spawned program if the test ends early, so no demo outlives it.
-struct Child(std::process::Child);
-
-impl Drop for Child {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
 #[test]
 fn the_station_demo_runs_to_its_end() {
     // `make demo` on three of its postures: every capture fired through the box is
@@ -664,7 +654,7 @@ fn the_station_demo_stops_on_ctrl_c() {
     // stopped and exits, leaving no worker behind
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("demo");
-    let mut child = Child(
+    let mut child = common::GroupChild::new(
         Command::new(env!("CARGO_BIN_EXE_conformd"))
             .args([
                 "demo",
@@ -695,14 +685,11 @@ fn the_station_demo_stops_on_ctrl_c() {
                 break addr;
             }
         }
-        assert!(
-            child.0.try_wait().unwrap().is_none(),
-            "the demo ended early"
-        );
+        assert!(child.try_wait().unwrap().is_none(), "the demo ended early");
         std::thread::sleep(std::time::Duration::from_millis(200));
     };
     assert!(listen.starts_with("127.0.0.1:"), "{listen}");
-    let pid = child.0.id().to_string();
+    let pid = child.id().to_string();
     assert!(
         Command::new("kill")
             .args(["-INT", &pid])
@@ -712,7 +699,7 @@ fn the_station_demo_stops_on_ctrl_c() {
     );
     let t = std::time::Instant::now();
     let status = loop {
-        if let Some(s) = child.0.try_wait().unwrap() {
+        if let Some(s) = child.try_wait().unwrap() {
             break s;
         }
         assert!(
@@ -722,7 +709,7 @@ fn the_station_demo_stops_on_ctrl_c() {
         std::thread::sleep(std::time::Duration::from_millis(100));
     };
     let mut stderr = String::new();
-    std::io::Read::read_to_string(child.0.stderr.as_mut().unwrap(), &mut stderr).unwrap();
+    std::io::Read::read_to_string(child.stderr.as_mut().unwrap(), &mut stderr).unwrap();
     assert!(
         !status.success(),
         "an interrupted demo is not a finished one"

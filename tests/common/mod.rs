@@ -10,9 +10,9 @@ use conformd::synth::cases::Case;
 #[allow(unused_imports)]
 pub use deadline::{CHILD_LIMIT, Deadline};
 
-/// A program started in its own process group (`process_group(0)`), killed with its
-/// group when the test ends, passing or failing, so no worker, daemon or job of theirs
-/// outlives the test.
+/// A program the test started, killed when the test ends, passing or failing, with its
+/// process group when it leads one (`process_group(0)`), so no worker, daemon or job of
+/// theirs outlives the test.
 pub struct GroupChild(Option<std::process::Child>);
 
 impl GroupChild {
@@ -45,11 +45,13 @@ impl Drop for GroupChild {
         let Some(child) = self.0.as_mut() else {
             return;
         };
-        // the group may outlive its leader (a job of a killed worker)
+        // the group may outlive its leader (a job of a killed worker); a program in
+        // the test's own group has none of its own, and is killed alone
         let _ = std::process::Command::new("kill")
             .args(["-KILL", "--", &format!("-{}", child.id())])
             .stderr(std::process::Stdio::null())
             .status();
+        let _ = child.kill();
         let _ = child.wait();
     }
 }
