@@ -21,13 +21,6 @@ pub enum NameError {
     NotOneLine { what: String, code: u32 },
 }
 
-// for the readers whose own errors are sentences yet (a manifest's, a rig file's)
-impl From<NameError> for String {
-    fn from(e: NameError) -> String {
-        e.to_string()
-    }
-}
-
 /// Checks that free text (a review's reason) reads as one line as written: no control
 /// character, no line or paragraph separator (U+2028, U+2029) and no bidirectional
 /// control (U+061C, U+200E, U+200F, U+202A-U+202E, U+2066-U+2069), which would break a

@@ -195,3 +195,65 @@ fn the_architecture_table_points_one_way() {
         }
     }
 }
+
+/// Every fallible function in `src/` says why it failed with a typed error (a
+/// `thiserror` enum or struct per module), never a bare sentence: a caller can then
+/// match on the reason, and the CLI and the API still print it as one sentence.
+#[test]
+fn no_function_returns_a_sentence_as_its_error() {
+    let mut found = Vec::new();
+    let mut files = 0;
+    for (_, path) in sources() {
+        files += 1;
+        let text = std::fs::read_to_string(&path).unwrap();
+        for (n, line) in text.lines().enumerate() {
+            let code = line.split("//").next().unwrap_or("");
+            let sentence_error = code.contains("type Err = String")
+                || code
+                    .match_indices("Result<")
+                    .any(|(at, _)| result_error_is_string(&code[at + "Result<".len()..]));
+            if sentence_error {
+                found.push(format!(
+                    "{}:{}: {}",
+                    path.strip_prefix(ROOT).unwrap().display(),
+                    n + 1,
+                    line.trim()
+                ));
+            }
+        }
+    }
+    assert!(files > 50, "only {files} sources found: the scan is broken");
+    assert!(
+        found.is_empty(),
+        "errors that are bare sentences:\n{}",
+        found.join("\n")
+    );
+}
+
+/// Whether the `Result<...>` whose arguments start `args` has `String` as its error:
+/// its second argument at the outermost level.
+fn result_error_is_string(args: &str) -> bool {
+    let mut depth = 0;
+    let mut second = None;
+    for (i, c) in args.char_indices() {
+        match c {
+            '<' | '(' | '[' => depth += 1,
+            '>' | ')' | ']' if depth > 0 => depth -= 1,
+            '>' => {
+                return second.is_some_and(|s: usize| args[s..i].trim() == "String");
+            }
+            ',' if depth == 0 => second = Some(i + 1),
+            _ => {}
+        }
+    }
+    false
+}
+
+#[test]
+fn the_sentence_error_scan_reads_result_types() {
+    assert!(result_error_is_string("(), String> {"));
+    assert!(result_error_is_string("Vec<(String, u32)>, String>"));
+    assert!(!result_error_is_string("String, CaptureRefused>>,"));
+    assert!(!result_error_is_string("Vec<String>, JournalError> {"));
+    assert!(!result_error_is_string("T> {"));
+}

@@ -196,7 +196,7 @@ pub struct ConformArgs {
     pub config: Option<PathBuf>,
     /// method: `paper` (as published) or `default` (conformd's); overrides the config
     #[arg(long)]
-    pub method: Option<Method>,
+    pub method: Option<MethodArg>,
     /// output mesh (.ply or .obj)
     #[arg(long)]
     pub out: PathBuf,
@@ -547,4 +547,22 @@ pub struct InfoArgs {
     pub mesh: PathBuf,
     #[arg(long)]
     pub original: Option<PathBuf>,
+}
+
+/// `--method`: the conformation method by its flag value.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum MethodArg {
+    /// conformd's method
+    Default,
+    /// Ju et al. 2004 as written
+    Paper,
+}
+
+impl From<MethodArg> for Method {
+    fn from(m: MethodArg) -> Method {
+        match m {
+            MethodArg::Default => Method::Default,
+            MethodArg::Paper => Method::Paper,
+        }
+    }
 }

@@ -52,11 +52,9 @@ pub fn conform_options(
 pub fn template_from_config(path: &Path) -> Result<crate::template::TemplateSource, CommandError> {
     crate::station::StationConfig::load(path)?
         .template
-        .ok_or_else(|| {
-            CommandError::Usage(format!(
-                "{}: no [template] table, and no template named",
-                path.display()
-            ))
+        .ok_or_else(|| CommandError::Input {
+            path: path.display().to_string(),
+            msg: "no [template] table, and no template named".into(),
         })
 }
 
@@ -273,14 +271,16 @@ pub struct MeshInfo {
 pub fn info(path: &Path, original: Option<&Path>) -> Result<MeshInfo, CommandError> {
     let m: Mesh = mesh::read_mesh(path)?;
     let variation = match original {
-        Some(o) => {
-            let o = mesh::read_mesh(o)?;
+        Some(o_path) => {
+            let o = mesh::read_mesh(o_path)?;
             if o.vertices.len() != m.vertices.len() || o.triangles != m.triangles {
-                return Err(CommandError::Usage(format!(
-                    "{} and {} do not share a topology, so their variations cannot be compared",
-                    path.display(),
-                    original.unwrap().display()
-                )));
+                return Err(CommandError::Input {
+                    path: path.display().to_string(),
+                    msg: format!(
+                        "{} does not share its topology, so their variations cannot be compared",
+                        o_path.display()
+                    ),
+                });
             }
             Some(quality::variation(&o.vertices, &m.vertices, &m.triangles))
         }

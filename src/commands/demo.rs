@@ -116,14 +116,12 @@ fn wait(
     let t = Instant::now();
     while !done() {
         if !daemon.running() {
-            return Err(CommandError::Usage(format!(
-                "demo: the daemon stopped (Ctrl-C, SIGTERM, or an error logged above) while waiting for {what}"
+            return Err(CommandError::Demo(format!(
+                "the daemon stopped (Ctrl-C, SIGTERM, or an error logged above) while waiting for {what}"
             )));
         }
         if t.elapsed() > limit {
-            return Err(CommandError::Usage(format!(
-                "demo: waited {limit:?} for {what}"
-            )));
+            return Err(CommandError::Demo(format!("waited {limit:?} for {what}")));
         }
         std::thread::sleep(Duration::from_millis(100));
     }
@@ -179,9 +177,7 @@ pub fn demo_station(
     let seconds_render = t.elapsed().as_secs_f64();
 
     // the station: replay cameras, the simulated box, the daemon
-    let trigger = crate::synth::trigger_box::SimulatedBox::start().map_err(|e| {
-        CommandError::Usage(format!("demo: no pseudo-terminal for the trigger box: {e}"))
-    })?;
+    let trigger = crate::synth::trigger_box::SimulatedBox::start()?;
     let port = std::net::TcpListener::bind("127.0.0.1:0")
         .and_then(|l| l.local_addr())
         .map(|a| a.port())

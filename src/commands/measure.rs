@@ -109,7 +109,7 @@ pub fn definitions_for(
     source: &TemplateSource,
     definitions: Option<&Path>,
 ) -> Result<Definitions, CommandError> {
-    let bad = |e: crate::measure::MeasureError| CommandError::Usage(e.to_string());
+    let bad = CommandError::Definitions;
     match (definitions, source.generic) {
         (Some(p), _) => Definitions::read(p).map_err(bad),
         (None, Some(Kind::Pig)) => Definitions::parse(crate::measure::PIG, "pig").map_err(bad),
@@ -129,7 +129,7 @@ pub fn resolve_measurements(
     let defs = definitions_for(source, definitions)?;
     let (template, landmarks) = source.load()?;
     defs.resolve(&template, landmarks.as_deref().unwrap_or(&[]))
-        .map_err(|e| CommandError::Usage(e.to_string()))
+        .map_err(CommandError::Definitions)
 }
 
 /// Measures a conformed mesh; with `posture`, also with its posture removed.
@@ -358,8 +358,7 @@ pub fn model_weigh(
             .map(|(_, ms, _)| ms.iter().map(|m| m.name.clone()).collect())
             .unwrap_or_default(),
     };
-    let model = crate::measure::weight::WeightModel::fit(&samples, &features)
-        .map_err(|e| CommandError::Usage(e.to_string()))?;
+    let model = crate::measure::weight::WeightModel::fit(&samples, &features)?;
     crate::files::write_atomic(
         out,
         serde_json::to_string_pretty(&model)

@@ -30,6 +30,9 @@ use std::path::Path;
 pub enum CommandError {
     #[error(transparent)]
     File(#[from] mesh::FileError),
+    /// a mesh read well whose contents are unfit (an index out of range, a NaN)
+    #[error(transparent)]
+    Mesh(#[from] mesh::MeshError),
     #[error("{path}: {msg}")]
     Config { path: String, msg: String },
     #[error(transparent)]
@@ -46,6 +49,15 @@ pub enum CommandError {
     Daemon(#[from] crate::daemon::DaemonError),
     #[error(transparent)]
     StereoRig(#[from] crate::stereo::rig::RigError),
+    /// a recorded pair's calibration file that could not be read
+    #[error("{path}: {source}")]
+    RecordedCalibration {
+        path: String,
+        source: crate::stereo::recorded::RecordedCalibrationError,
+    },
+    /// a rig file made by a command that would not be valid
+    #[error(transparent)]
+    RigFile(#[from] crate::stereo::rig::RigFileError),
     #[error(transparent)]
     Calibration(#[from] crate::stereo::calibrate::CalibrationError),
     #[error(transparent)]
@@ -75,8 +87,34 @@ pub enum CommandError {
     /// a template named wrongly or given parameters it does not have
     #[error(transparent)]
     Template(#[from] crate::template::TemplateError),
+    /// a flag given wrongly or a combination of flags that does not make sense
     #[error("{0}")]
     Usage(String),
+    /// a file given that cannot be used for what was asked (a point cloud to render,
+    /// two meshes of different topology, a pair of two sizes); names the file
+    #[error("{path}: {msg}")]
+    Input { path: String, msg: String },
+    /// an image file that could not be decoded
+    #[error("{path}: not a readable image: {msg}")]
+    Image { path: String, msg: String },
+    /// a scan that cannot be searched (too few points, NaN, ...)
+    #[error("{path}: {source}")]
+    Scan {
+        path: String,
+        source: crate::conform::correspond::ScanError,
+    },
+    /// measurement definitions that do not fit the template
+    #[error(transparent)]
+    Definitions(crate::measure::MeasureError),
+    /// a weight model that could not be fitted to the samples
+    #[error(transparent)]
+    Weight(#[from] crate::measure::weight::WeightError),
+    /// the station demo could not run to its end
+    #[error("demo: {0}")]
+    Demo(String),
+    /// the demo's simulated trigger box got no pseudo-terminal
+    #[error("demo: no pseudo-terminal for the trigger box: {0}")]
+    Terminal(#[from] serialport::Error),
     /// the operator's landmarks file of the capture being processed: a file that is
     /// not one (a pipe, garbled lines) is the capture's fault, not the machine's
     #[error("{0}")]

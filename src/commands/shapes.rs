@@ -92,18 +92,23 @@ pub enum ColourBy {
 }
 
 impl std::str::FromStr for ColourBy {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
+    type Err = UnknownColouring;
+    fn from_str(s: &str) -> Result<Self, UnknownColouring> {
         match s {
             "none" => Ok(ColourBy::None),
             "group" => Ok(ColourBy::Group),
             _ => match s.strip_prefix("distance-to=") {
                 Some(p) if !p.is_empty() => Ok(ColourBy::DistanceTo(PathBuf::from(p))),
-                _ => Err(format!("'{s}': expected none, group or distance-to=SCAN")),
+                _ => Err(UnknownColouring(s.to_string())),
             },
         }
     }
 }
+
+/// A `--colour-by` value that is none of [`ColourBy`]'s.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("'{0}': expected none, group or distance-to=SCAN")]
+pub struct UnknownColouring(pub String);
 
 /// Renders a mesh to a PNG preview from the named views (`front`, `back`, `left`,
 /// `right`/`side`, `top`, `three-quarter`).
@@ -123,10 +128,10 @@ pub fn render(
     }
     let m = mesh::read_mesh(mesh_path)?;
     if m.triangles.is_empty() {
-        return Err(CommandError::Usage(format!(
-            "{}: a point cloud has no surface to render",
-            mesh_path.display()
-        )));
+        return Err(CommandError::Input {
+            path: mesh_path.display().to_string(),
+            msg: "a point cloud has no surface to render".into(),
+        });
     }
     let views = views
         .iter()
@@ -143,8 +148,11 @@ pub fn render(
         ColourBy::Group => Colouring::Groups,
         ColourBy::DistanceTo(scan) => {
             let s = mesh::read_mesh(scan)?;
-            let surface = conform::correspond::ScanSurface::new(&s)
-                .map_err(|e| CommandError::Usage(format!("{}: {e}", scan.display())))?;
+            let surface =
+                conform::correspond::ScanSurface::new(&s).map_err(|source| CommandError::Scan {
+                    path: scan.display().to_string(),
+                    source,
+                })?;
             Colouring::distances(
                 m.vertices.iter().map(|p| surface.distance(p)).collect(),
                 "MESH UNITS",
@@ -333,13 +341,13 @@ pub fn autorig(
     }
     let mesh = mesh::read_mesh(mesh_path)?;
     let name = mesh_path.display().to_string();
-    mesh.validate(&name).map_err(CommandError::Usage)?;
+    mesh.validate(&name)?;
     let settings = AutoRigSettings {
         limbs,
         ..Default::default()
     };
-    let rig =
-        TemplateRig::automatic(&mesh, &settings).map_err(|e| mesh::FileError::content(&name, e))?;
+    let rig = TemplateRig::automatic(&mesh, &settings)
+        .map_err(|e| mesh::FileError::content(&name, e.to_string()))?;
     rig.write(out)?;
     let owner = rig.dominant_bones();
     let mut moved = vec![0usize; rig.bones.len()];

@@ -330,12 +330,9 @@ pub fn calibrate_placement(
         for (side, k) in [("left", &pod.left), ("right", &pod.right)] {
             let img = set.grey_image(&pod.id, side, (k.width, k.height))?;
             let cam = set.camera(&pod.id, side)?;
-            let named = |what: String| {
-                CommandError::Usage(format!(
-                    "camera {} ({}): {what}",
-                    cam.id,
-                    capture.join(&cam.file).display()
-                ))
+            let named = |what: String| CommandError::Input {
+                path: capture.join(&cam.file).display().to_string(),
+                msg: format!("camera {}: {what}", cam.id),
             };
             let view = crate::stereo::calibrate::board_pose(k, img.as_raw(), cols, rows, square)
                 .map_err(|e| named(e.to_string()))?
@@ -496,7 +493,10 @@ pub fn reconstruct(
 fn read_grey(p: &Path) -> Result<image::GrayImage, CommandError> {
     let bytes = crate::files::read_limited(p, crate::files::MAX_IMAGE_BYTES)?;
     Ok(image::load_from_memory(&bytes)
-        .map_err(|e| CommandError::Usage(format!("{}: not a readable image: {e}", p.display())))?
+        .map_err(|e| CommandError::Image {
+            path: p.display().to_string(),
+            msg: e.to_string(),
+        })?
         .to_luma8())
 }
 
@@ -508,13 +508,15 @@ fn read_rectified_pair(
 ) -> Result<(image::GrayImage, image::GrayImage), CommandError> {
     let (l, r) = (read_grey(left)?, read_grey(right)?);
     if l.dimensions() != r.dimensions() {
-        return Err(CommandError::Usage(format!(
-            "{} is {:?} but {} is {:?}: a rectified pair has one size",
-            left.display(),
-            l.dimensions(),
-            right.display(),
-            r.dimensions()
-        )));
+        return Err(CommandError::Input {
+            path: right.display().to_string(),
+            msg: format!(
+                "{:?}, but {} is {:?}: a rectified pair has one size",
+                r.dimensions(),
+                left.display(),
+                l.dimensions()
+            ),
+        });
     }
     Ok((l, r))
 }
@@ -598,11 +600,13 @@ pub fn disparity_scored(
         opts,
     )?;
     if d.valid_share() == 0.0 {
-        return Err(CommandError::Usage(format!(
-            "no pixel of {} found its match in {}: the pair has no texture to match (or is not a rectified pair)",
-            left.display(),
-            right.display()
-        )));
+        return Err(CommandError::Input {
+            path: left.display().to_string(),
+            msg: format!(
+                "no pixel found its match in {}: the pair has no texture to match (or is not a rectified pair)",
+                right.display()
+            ),
+        });
     }
     let bytes = if ext == "png" {
         let px: Vec<u16> = d
@@ -680,7 +684,10 @@ pub fn import_pair(
     let (l, r) = read_rectified_pair(left, right)?;
     let calib_text = crate::files::read_limited(calib, 1 << 20)?;
     let cal = crate::stereo::recorded::parse_calibration(&String::from_utf8_lossy(&calib_text))
-        .map_err(|e| CommandError::Usage(format!("{}: {e}", calib.display())))?;
+        .map_err(|source| CommandError::RecordedCalibration {
+            path: calib.display().to_string(),
+            source,
+        })?;
     let ndisp = num_disparities.unwrap_or_else(|| match cal.ndisp {
         Some(n) => (n as i32 + 15) / 16 * 16,
         None => 128,
@@ -689,11 +696,13 @@ pub fn import_pair(
     if let Some((cw, ch)) = cal.size
         && (cw, ch) != (w, h)
     {
-        return Err(CommandError::Usage(format!(
-            "{}: the calibration is for {cw}x{ch} images, {} is {w}x{h}",
-            calib.display(),
-            left.display()
-        )));
+        return Err(CommandError::Input {
+            path: calib.display().to_string(),
+            msg: format!(
+                "the calibration is for {cw}x{ch} images, {} is {w}x{h}",
+                left.display()
+            ),
+        });
     }
     // the truth is kept under one name whatever it was called, its type kept
     let truth_file = truth.map(|t| {
@@ -707,12 +716,13 @@ pub fn import_pair(
         let bytes = crate::files::read_limited(t, crate::files::MAX_IMAGE_BYTES)?;
         let parsed = crate::stereo::truth::parse_truth(t, &bytes, None)?;
         if (parsed.width, parsed.height) != (w, h) {
-            return Err(CommandError::Usage(format!(
-                "{}: the truth is {} x {}, the images {w} x {h}",
-                t.display(),
-                parsed.width,
-                parsed.height
-            )));
+            return Err(CommandError::Input {
+                path: t.display().to_string(),
+                msg: format!(
+                    "the truth is {} x {}, the images {w} x {h}",
+                    parsed.width, parsed.height
+                ),
+            });
         }
         extra.push((file, bytes));
     }
@@ -724,7 +734,7 @@ pub fn import_pair(
         .unwrap_or("recorded");
     let name = format!("replay-{stem}");
     let rig = cal.rig_file(&name, IMPORTED_POD, (w, h), ndisp);
-    rig.check().map_err(CommandError::Usage)?;
+    rig.check()?;
     let rig_path = out.join("rig.toml");
     let cal_dir = out.join("calibration");
     std::fs::create_dir_all(&cal_dir).map_err(|source| CommandError::Io {

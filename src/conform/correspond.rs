@@ -5,7 +5,7 @@
 //! or lies on the scan's boundary (off the edge of the data) has no match: FALSE in the
 //! paper's labelling, missing data.
 
-use crate::mesh::{Mesh, V3, topology};
+use crate::mesh::{Mesh, MeshError, V3, topology};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use parry3d_f64::math::Vector as PVec;
 use parry3d_f64::query::PointQueryWithLocation;
@@ -77,7 +77,9 @@ pub enum ScanError {
     #[error("the scan has too few points ({0}); at least 16 are needed")]
     TooFew(usize),
     #[error("the scan is invalid: {0}")]
-    Invalid(String),
+    Invalid(#[from] MeshError),
+    #[error("the scan is invalid: {0}")]
+    Triangles(String),
 }
 
 const CLOUD_K: usize = 8;
@@ -99,13 +101,13 @@ pub(crate) fn nearest_within(
 
 /// A point set fit for geometry: coordinates within [`MAX_COORDINATE`], and an extent
 /// (not all points in one place). `what` names it in the sentence.
-pub fn check_extent(m: &Mesh, what: &str) -> Result<(), String> {
+pub fn check_extent(m: &Mesh, what: &str) -> Result<(), MeshError> {
     m.check_coordinates(what)?;
     if !(m.diagonal() > 0.0) {
-        return Err(format!(
-            "{what}: all {} points lie in one place (no extent)",
-            m.vertices.len()
-        ));
+        return Err(MeshError::NoExtent {
+            what: what.to_string(),
+            points: m.vertices.len(),
+        });
     }
     // spread across the main direction: points on a line give no surface to fit
     let n = m.vertices.len() as f64;
@@ -119,10 +121,10 @@ pub fn check_extent(m: &Mesh, what: &str) -> Result<(), String> {
     let mut ev: Vec<f64> = cov.symmetric_eigenvalues().iter().copied().collect();
     ev.sort_by(|a, b| b.total_cmp(a));
     if !(ev[1] > 1e-8 * ev[0]) {
-        return Err(format!(
-            "{what}: all {} points lie on one line (no surface)",
-            m.vertices.len()
-        ));
+        return Err(MeshError::OnALine {
+            what: what.to_string(),
+            points: m.vertices.len(),
+        });
     }
     Ok(())
 }
@@ -134,11 +136,11 @@ impl ScanSurface {
         if scan.vertices.is_empty() {
             return Err(ScanError::Empty);
         }
-        scan.validate("scan").map_err(ScanError::Invalid)?;
+        scan.validate("scan")?;
         if scan.vertices.len() < 16 {
             return Err(ScanError::TooFew(scan.vertices.len()));
         }
-        check_extent(scan, "scan").map_err(ScanError::Invalid)?;
+        check_extent(scan, "scan")?;
         let points = scan.vertices.clone();
         let arr: Vec<[f64; 3]> = points.iter().map(|p| [p.x, p.y, p.z]).collect();
         let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&arr);
@@ -164,7 +166,7 @@ impl ScanSurface {
         } else {
             let verts: Vec<PVec> = points.iter().map(|p| PVec::new(p.x, p.y, p.z)).collect();
             let tri = TriMesh::new(verts, scan.triangles.clone())
-                .map_err(|e| ScanError::Invalid(format!("{e:?}")))?;
+                .map_err(|e| ScanError::Triangles(format!("{e:?}")))?;
             let face_normals = (0..scan.triangles.len())
                 .map(|t| {
                     scan.face_normal_scaled(t)

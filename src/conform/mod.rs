@@ -43,31 +43,6 @@ pub enum Method {
     Default,
 }
 
-impl clap::ValueEnum for Method {
-    fn value_variants<'a>() -> &'a [Self] {
-        &[Method::Default, Method::Paper]
-    }
-    fn to_possible_value(&self) -> Option<clap::builder::PossibleValue> {
-        Some(clap::builder::PossibleValue::new(match self {
-            Method::Default => "default",
-            Method::Paper => "paper",
-        }))
-    }
-}
-
-impl std::str::FromStr for Method {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
-        match s {
-            "paper" => Ok(Method::Paper),
-            "default" => Ok(Method::Default),
-            _ => Err(format!(
-                "unknown method '{s}' (expected 'paper' or 'default')"
-            )),
-        }
-    }
-}
-
 /// When the coarse stage runs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -244,16 +219,16 @@ impl ConformOptions {
     /// Checks every value before work starts.
     /// Refuses a `stiffness` entry for a group `template` does not have (a misspelt
     /// group would silently leave its springs as they are).
-    pub fn check_groups(&self, template: &Mesh) -> Result<(), String> {
+    pub fn check_groups(&self, template: &Mesh) -> Result<(), UnknownGroup> {
         match self
             .stiffness
             .keys()
             .find(|g| !template.groups.contains_key(*g))
         {
-            Some(g) => Err(format!(
-                "stiffness names group '{g}', which the template does not have (it has: {})",
-                template.group_names()
-            )),
+            Some(g) => Err(UnknownGroup {
+                group: g.clone(),
+                has: template.group_names(),
+            }),
             None => Ok(()),
         }
     }
@@ -407,10 +382,21 @@ impl ConformOptions {
     }
 }
 
+/// A `stiffness` entry for a group the template does not have.
+#[derive(Debug, Clone, thiserror::Error)]
+#[error("stiffness names group '{group}', which the template does not have (it has: {has})")]
+pub struct UnknownGroup {
+    pub group: String,
+    /// the template's groups, listed
+    pub has: String,
+}
+
 #[derive(Debug, thiserror::Error)]
 pub enum ConformError {
     #[error("template: {0}")]
     Template(String),
+    #[error("template: {0}")]
+    TemplateMesh(crate::mesh::MeshError),
     #[error("scan: {0}")]
     Scan(#[from] correspond::ScanError),
     #[error("landmarks: {0}")]
@@ -419,6 +405,8 @@ pub enum ConformError {
     Rbf(#[from] rbf::RbfError),
     #[error("options: {0}")]
     Options(String),
+    #[error("options: {0}")]
+    Group(#[from] UnknownGroup),
     #[error("cancelled")]
     Cancelled,
     /// a fault of the method, never of the input: reported rather than written out
@@ -694,7 +682,7 @@ fn pair_landmarks(
             LandmarkPos::Point(q) => nearest_vertex(&template.vertices, &q),
         };
         let target = crate::mesh::landmarks::scan_points(std::slice::from_ref(s))
-            .map_err(ConformError::Landmarks)?[0]
+            .map_err(|e| ConformError::Landmarks(e.to_string()))?[0]
             .1;
         if !target.iter().all(|c| c.is_finite()) {
             return Err(ConformError::Landmarks(format!(
@@ -884,8 +872,8 @@ fn check_inputs(template: &Mesh, opts: &ConformOptions) -> Result<(), ConformErr
     }
     template
         .validate("template")
-        .map_err(ConformError::Template)?;
-    correspond::check_extent(template, "template").map_err(ConformError::Template)?;
+        .map_err(ConformError::TemplateMesh)?;
+    correspond::check_extent(template, "template").map_err(ConformError::TemplateMesh)?;
     if template.vertices.len() < 4 || !(template.area() > 0.0) {
         return Err(ConformError::Template(format!(
             "{} vertices and an area of {:e}: a template needs at least 4 vertices and a surface",
@@ -893,7 +881,7 @@ fn check_inputs(template: &Mesh, opts: &ConformOptions) -> Result<(), ConformErr
             template.area()
         )));
     }
-    opts.check_groups(template).map_err(ConformError::Options)
+    Ok(opts.check_groups(template)?)
 }
 
 /// What every hypothesis's elastic fit shares.

@@ -2,7 +2,7 @@
 //! trigger box), takes capture requests from the API and fires on the box's button and
 //! RFID events (the tag becomes the capture's subject).
 
-use super::{CaptureRequest, DaemonError, RigStatus, Shared};
+use super::{CaptureRefused, CaptureRequest, DaemonError, RigStatus, Shared};
 use crate::devices::trigger::BoxEvent;
 use crate::station::StationConfig;
 use std::sync::Arc;
@@ -59,7 +59,7 @@ fn capture_loop(shared: Arc<Shared>, rx: Receiver<CaptureRequest>) {
                     // answer waiting requests, then try again a little later
                     while let Ok(req) = rx.recv_timeout(Duration::from_millis(500)) {
                         if let Some(r) = req.reply {
-                            let _ = r.send(Err(format!("the rig is not available: {e}")));
+                            let _ = r.send(Err(CaptureRefused::RigUnavailable(e.to_string())));
                         }
                     }
                     continue;
@@ -109,9 +109,8 @@ fn capture_loop(shared: Arc<Shared>, rx: Receiver<CaptureRequest>) {
                 Ok(set.id)
             }
             Err(e) => {
-                let msg = e.to_string();
-                set_error(&shared, msg.clone());
-                Err(msg)
+                set_error(&shared, e.to_string());
+                Err(e.into())
             }
         };
         if let Some(r) = req.reply {

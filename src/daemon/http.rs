@@ -578,7 +578,7 @@ async fn trigger(Ctx(shared): Ctx<Arc<Shared>>, body: axum::body::Bytes) -> Api<
             axum::Json(serde_json::json!({ "capture": id })),
         )
             .into_response()),
-        Ok(Ok(Err(e))) => Err(ApiError(StatusCode::SERVICE_UNAVAILABLE, e)),
+        Ok(Ok(Err(e))) => Err(ApiError(StatusCode::SERVICE_UNAVAILABLE, e.to_string())),
         _ => Err(ApiError(
             StatusCode::SERVICE_UNAVAILABLE,
             "the rig did not answer".into(),

@@ -52,7 +52,31 @@ fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> DaemonError + '_ {
 /// A capture asked for by the trigger box, the API or a test.
 pub struct CaptureRequest {
     pub subject: Option<String>,
-    pub reply: Option<tokio::sync::oneshot::Sender<Result<String, String>>>,
+    /// the capture's id, or why none was taken
+    pub reply: Option<tokio::sync::oneshot::Sender<Result<String, CaptureRefused>>>,
+}
+
+/// Why a capture asked for was not taken.
+#[derive(Debug, thiserror::Error)]
+pub enum CaptureRefused {
+    /// the cameras or the trigger box could not be opened (the rig tries again)
+    #[error("the rig is not available: {0}")]
+    RigUnavailable(String),
+    #[error(transparent)]
+    Failed(#[from] crate::devices::capture::CaptureError),
+}
+
+/// Why the shape model was not rebuilt.
+#[derive(Debug, thiserror::Error)]
+enum RebuildError {
+    #[error("the station file has no [model] file")]
+    NoFile,
+    #[error(transparent)]
+    Journal(#[from] JournalError),
+    #[error(transparent)]
+    Model(#[from] crate::model::ModelError),
+    #[error(transparent)]
+    Write(#[from] crate::mesh::FileError),
 }
 
 /// What the status page and `/api/status` say of the rig.
@@ -987,7 +1011,7 @@ pub fn request_model_rebuild(shared: &Arc<Shared>) -> bool {
     std::thread::spawn(move || {
         let r = rebuild_model(&s);
         if let Ok(mut e) = s.model_error.lock() {
-            *e = r.as_ref().err().cloned();
+            *e = r.as_ref().err().map(|e| e.to_string());
         }
         match r {
             Ok(n) => info!(meshes = n, "shape model rebuilt"),
@@ -1000,17 +1024,11 @@ pub fn request_model_rebuild(shared: &Arc<Shared>) -> bool {
 
 /// Builds the model over every done result's conformed mesh and writes it atomically to
 /// `[model] file`; the workers load it for every later job. Returns the mesh count.
-fn rebuild_model(shared: &Shared) -> Result<usize, String> {
-    let path = shared
-        .cfg
-        .model
-        .file
-        .clone()
-        .ok_or("the station file has no [model] file")?;
+fn rebuild_model(shared: &Shared) -> Result<usize, RebuildError> {
+    let path = shared.cfg.model.file.clone().ok_or(RebuildError::NoFile)?;
     let done = shared
         .journal()
-        .list(Some(journal::State::Done), usize::MAX)
-        .map_err(|e| e.to_string())?;
+        .list(Some(journal::State::Done), usize::MAX)?;
     let mut samples = Vec::new();
     for job in done {
         let Some(dir) = job.result else { continue };
@@ -1028,8 +1046,7 @@ fn rebuild_model(shared: &Shared) -> Result<usize, String> {
         }
     }
     samples.sort_by(|a, b| a.0.cmp(&b.0));
-    let model = crate::model::ShapeModel::build(&samples, &Default::default())
-        .map_err(|e| e.to_string())?;
-    model.save(&path).map_err(|e| e.to_string())?;
+    let model = crate::model::ShapeModel::build(&samples, &Default::default())?;
+    model.save(&path)?;
     Ok(samples.len())
 }

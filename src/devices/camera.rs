@@ -103,8 +103,8 @@ impl Frame {
     }
 
     /// The bytes of the file (JPEG as delivered; PNG otherwise).
-    pub fn encode(&self) -> Result<Vec<u8>, String> {
-        let png = |ct: image::ExtendedColorType, px: &[u8]| -> Result<Vec<u8>, String> {
+    pub fn encode(&self) -> Result<Vec<u8>, CameraError> {
+        let png = |ct: image::ExtendedColorType, px: &[u8]| -> Result<Vec<u8>, CameraError> {
             let mut out = Vec::new();
             image::ImageEncoder::write_image(
                 image::codecs::png::PngEncoder::new(&mut out),
@@ -113,7 +113,10 @@ impl Frame {
                 self.height,
                 ct,
             )
-            .map_err(|e| format!("camera {}: encoding the frame: {e}", self.camera))?;
+            .map_err(|e| CameraError::Encode {
+                camera: self.camera.clone(),
+                msg: e.to_string(),
+            })?;
             Ok(out)
         };
         match &self.data {
@@ -143,6 +146,8 @@ pub enum CameraError {
     Device { camera: String, msg: String },
     #[error("camera {camera}: {msg}")]
     Settings { camera: String, msg: String },
+    #[error("camera {camera}: encoding the frame: {msg}")]
+    Encode { camera: String, msg: String },
 }
 
 fn stale_note(stale: u32) -> String {

@@ -55,15 +55,12 @@ impl Manifest {
 
     /// Checks what serde cannot: format and version, plain and distinct ids and file
     /// names, a pod and side for every camera, sizes within reason.
-    pub fn check(&self) -> Result<(), String> {
+    pub fn check(&self) -> Result<(), ManifestError> {
         if self.format != Self::FORMAT || self.version != Self::VERSION {
-            return Err(format!(
-                "format '{}' version {} is not {} {}",
-                self.format.escape_default(),
-                self.version,
-                Self::FORMAT,
-                Self::VERSION
-            ));
+            return Err(ManifestError::Format {
+                format: self.format.escape_default().to_string(),
+                version: self.version,
+            });
         }
         check_plain_name("capture id", &self.id)?;
         if let Some(s) = &self.subject {
@@ -71,10 +68,7 @@ impl Manifest {
             check_plain_name("subject", s)?;
         }
         if self.cameras.is_empty() || self.cameras.len() > MAX_CAMERAS {
-            return Err(format!(
-                "lists {} cameras (1 to {MAX_CAMERAS})",
-                self.cameras.len()
-            ));
+            return Err(ManifestError::CameraCount(self.cameras.len()));
         }
         let mut ids = std::collections::BTreeSet::new();
         let mut files = std::collections::BTreeSet::new();
@@ -85,30 +79,32 @@ impl Manifest {
             check_plain_name(&format!("camera {}'s pod", c.id), &c.pod)?;
             check_plain_name(&format!("camera {}'s side", c.id), &c.side)?;
             if !(1..=20_000).contains(&c.width) || !(1..=20_000).contains(&c.height) {
-                return Err(format!(
-                    "camera {}: {}x{} is not an image size",
-                    c.id, c.width, c.height
-                ));
+                return Err(ManifestError::ImageSize {
+                    camera: c.id.clone(),
+                    width: c.width,
+                    height: c.height,
+                });
             }
             if !ids.insert(&c.id) {
-                return Err(format!("two cameras have the id '{}'", c.id));
+                return Err(ManifestError::TwoIds(c.id.clone()));
             }
             if !files.insert(&c.file) {
-                return Err(format!("two cameras share the file '{}'", c.file));
+                return Err(ManifestError::SharedFile(c.file.clone()));
             }
             if !places.insert((&c.pod, &c.side)) {
-                return Err(format!(
-                    "two cameras are the {} camera of pod {}",
-                    c.side, c.pod
-                ));
+                return Err(ManifestError::SamePlace {
+                    pod: c.pod.clone(),
+                    side: c.side.clone(),
+                });
             }
         }
         Ok(())
     }
 
     /// Parses and checks the bytes of a `manifest.json`.
-    pub fn parse(bytes: &[u8]) -> Result<Manifest, String> {
-        let m: Manifest = serde_json::from_slice(bytes).map_err(|e| e.to_string())?;
+    pub fn parse(bytes: &[u8]) -> Result<Manifest, ManifestError> {
+        let m: Manifest =
+            serde_json::from_slice(bytes).map_err(|e| ManifestError::Json(e.to_string()))?;
         m.check()?;
         Ok(m)
     }
@@ -141,6 +137,35 @@ pub fn utc_stamp(t: SystemTime) -> String {
         rem % 60,
         d.subsec_millis()
     )
+}
+
+/// What is wrong in a manifest that serde cannot see, or why it is not JSON of one.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ManifestError {
+    #[error("{0}")]
+    Json(String),
+    #[error(
+        "format '{format}' version {version} is not {} {}",
+        Manifest::FORMAT,
+        Manifest::VERSION
+    )]
+    Format { format: String, version: u32 },
+    #[error(transparent)]
+    Name(#[from] crate::paths::NameError),
+    #[error("lists {0} cameras (1 to {MAX_CAMERAS})")]
+    CameraCount(usize),
+    #[error("camera {camera}: {width}x{height} is not an image size")]
+    ImageSize {
+        camera: String,
+        width: u32,
+        height: u32,
+    },
+    #[error("two cameras have the id '{0}'")]
+    TwoIds(String),
+    #[error("two cameras share the file '{0}'")]
+    SharedFile(String),
+    #[error("two cameras are the {side} camera of pod {pod}")]
+    SamePlace { pod: String, side: String },
 }
 
 /// Why a capture set could not be read or written. Every variant names the file.
@@ -229,7 +254,7 @@ impl CaptureSetDir {
             ReadError::Io(source) => io_err(&p)(source),
             ReadError::Refused(msg) => bad(msg),
         })?;
-        let manifest = Manifest::parse(&bytes).map_err(bad)?;
+        let manifest = Manifest::parse(&bytes).map_err(|e| bad(e.to_string()))?;
         Ok(CaptureSetDir {
             dir: dir.to_path_buf(),
             manifest,
@@ -358,7 +383,7 @@ pub fn write_capture_set(
         path: root.join(&manifest.id).display().to_string(),
         msg,
     };
-    manifest.check().map_err(bad)?;
+    manifest.check().map_err(|e| bad(e.to_string()))?;
     for (name, _) in files {
         check_plain_name("file", name).map_err(|e| bad(e.to_string()))?;
     }

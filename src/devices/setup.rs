@@ -56,7 +56,7 @@ pub struct CameraSection {
 
 impl CameraSection {
     /// Plain id, pod and side (they become file names), and exactly one source.
-    pub fn check(&self) -> Result<(), String> {
+    pub fn check(&self) -> Result<(), CameraSectionError> {
         use crate::paths::check_plain_name;
         check_plain_name("camera id", &self.id)?;
         check_plain_name(&format!("camera {}'s pod", self.id), &self.pod)?;
@@ -64,13 +64,19 @@ impl CameraSection {
         let kinds =
             self.device.is_some() as u8 + self.replay.is_some() as u8 + self.synthetic as u8;
         if kinds != 1 {
-            return Err(format!(
-                "camera '{}': give exactly one of device, replay or synthetic",
-                self.id
-            ));
+            return Err(CameraSectionError::Sources(self.id.clone()));
         }
         Ok(())
     }
+}
+
+/// What is wrong with one `[[cameras]]` entry.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum CameraSectionError {
+    #[error(transparent)]
+    Name(#[from] crate::paths::NameError),
+    #[error("camera '{0}': give exactly one of device, replay or synthetic")]
+    Sources(String),
 }
 
 /// The rig part of a station config (made by `station::StationConfig::rig_config`).

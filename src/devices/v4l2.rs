@@ -32,7 +32,7 @@ pub const EXPOSURE_APERTURE_PRIORITY: i64 = 3;
 pub fn choose_format(
     offered: &[(PixelFormat, Vec<(u32, u32)>)],
     want: &CameraSettings,
-) -> Result<(PixelFormat, u32, u32), String> {
+) -> Result<(PixelFormat, u32, u32), FormatError> {
     let has = |f: PixelFormat| {
         offered
             .iter()
@@ -58,16 +58,34 @@ pub fn choose_format(
             )
         })
         .collect();
-    Err(format!(
-        "{}x{} is not offered (the device has: {})",
-        want.width,
-        want.height,
-        if list.is_empty() {
+    Err(FormatError::NotOffered {
+        width: want.width,
+        height: want.height,
+        has: if list.is_empty() {
             "nothing the station reads".into()
         } else {
             list.join("; ")
-        }
-    ))
+        },
+    })
+}
+
+/// Why a camera's format cannot be set or a buffer read as a frame.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum FormatError {
+    #[error("{width}x{height} is not offered (the device has: {has})")]
+    NotOffered {
+        width: u32,
+        height: u32,
+        has: String,
+    },
+    #[error("MJPG buffer is not a JPEG")]
+    NotJpeg,
+    #[error("{format} frame of {got} bytes, {need} expected")]
+    Short {
+        format: &'static str,
+        got: usize,
+        need: usize,
+    },
 }
 
 /// The control writes for the settings: manual exposure in the driver's units of 100 us,
@@ -96,13 +114,14 @@ pub fn timestamp(sec: i64, usec: i64) -> Duration {
 }
 
 /// YUYV 4:2:2 to RGB (BT.601, limited range).
-pub fn yuyv_to_rgb(data: &[u8], width: u32, height: u32) -> Result<Vec<u8>, String> {
+pub fn yuyv_to_rgb(data: &[u8], width: u32, height: u32) -> Result<Vec<u8>, FormatError> {
     let need = (width * height * 2) as usize;
     if data.len() < need {
-        return Err(format!(
-            "YUYV frame of {} bytes, {need} expected",
-            data.len()
-        ));
+        return Err(FormatError::Short {
+            format: "YUYV",
+            got: data.len(),
+            need,
+        });
     }
     let mut out = Vec::with_capacity((width * height * 3) as usize);
     for px in data[..need].chunks_exact(4) {
@@ -128,11 +147,11 @@ pub fn decode(
     data: &[u8],
     width: u32,
     height: u32,
-) -> Result<FrameData, String> {
+) -> Result<FrameData, FormatError> {
     match format {
         PixelFormat::Mjpg => {
             if data.len() < 4 || data[0] != 0xff || data[1] != 0xd8 {
-                return Err("MJPG buffer is not a JPEG".into());
+                return Err(FormatError::NotJpeg);
             }
             Ok(FrameData::Jpeg(data.to_vec()))
         }
@@ -140,10 +159,11 @@ pub fn decode(
         PixelFormat::Grey => {
             let need = (width * height) as usize;
             if data.len() < need {
-                return Err(format!(
-                    "GREY frame of {} bytes, {need} expected",
-                    data.len()
-                ));
+                return Err(FormatError::Short {
+                    format: "GREY",
+                    got: data.len(),
+                    need,
+                });
             }
             Ok(FrameData::Gray8(data[..need].to_vec()))
         }
@@ -363,7 +383,7 @@ impl FrameStream {
                     got: sequence,
                 });
             }
-            let data = decode(f, &bytes, w, h).map_err(device)?;
+            let data = decode(f, &bytes, w, h).map_err(|e| device(e.to_string()))?;
             return Ok(Frame {
                 camera,
                 width: w,
@@ -476,9 +496,9 @@ impl Camera for V4l2Camera {
             return Ok(());
         };
         let offered = Self::offered(&dev).map_err(|e| self.err(e))?;
-        let (f, w, h) = choose_format(&offered, s).map_err(|m| CameraError::Settings {
+        let (f, w, h) = choose_format(&offered, s).map_err(|e| CameraError::Settings {
             camera: self.info.id.clone(),
-            msg: m,
+            msg: e.to_string(),
         })?;
         let mut fmt = dev.format().map_err(|e| self.err(e))?;
         fmt.width = w;
@@ -675,7 +695,9 @@ mod tests {
             choose_format(&offered, &want(PixelFormat::Mjpg, 640, 480)),
             Ok((PixelFormat::Yuyv, 640, 480))
         );
-        let e = choose_format(&offered, &want(PixelFormat::Mjpg, 800, 600)).unwrap_err();
+        let e = choose_format(&offered, &want(PixelFormat::Mjpg, 800, 600))
+            .unwrap_err()
+            .to_string();
         assert!(
             e.contains("800x600 is not offered") && e.contains("Mjpg 1280x960 1920x1080"),
             "{e}"
@@ -916,20 +938,22 @@ mod tests {
         let rgb = yuyv_to_rgb(&[128, 128, 128, 128], 2, 1).unwrap();
         assert_eq!(rgb.len(), 6);
         assert!(rgb.iter().all(|&c| c == rgb[0]));
-        assert!(
-            yuyv_to_rgb(&[1, 2, 3], 2, 1)
-                .unwrap_err()
-                .contains("3 bytes")
+        assert_eq!(
+            yuyv_to_rgb(&[1, 2, 3], 2, 1).unwrap_err(),
+            FormatError::Short {
+                format: "YUYV",
+                got: 3,
+                need: 4
+            }
         );
         assert!(matches!(
             decode(PixelFormat::Mjpg, &[0xff, 0xd8, 0, 0], 1, 1),
             Ok(FrameData::Jpeg(_))
         ));
-        assert!(
-            decode(PixelFormat::Mjpg, &[0, 0, 0, 0], 1, 1)
-                .unwrap_err()
-                .contains("not a JPEG")
-        );
+        assert!(matches!(
+            decode(PixelFormat::Mjpg, &[0, 0, 0, 0], 1, 1),
+            Err(FormatError::NotJpeg)
+        ));
         assert!(decode(PixelFormat::Grey, &[1, 2], 2, 2).is_err());
         assert_eq!(
             resolve("usb-cam0-video-index0"),

@@ -249,7 +249,7 @@ fn resolve_kind(
     watertight: bool,
     err: &dyn Fn(String) -> MeasureError,
 ) -> Result<Resolved1, MeasureError> {
-    let at = |p: &Point| resolve_point(p, template, landmarks).map_err(err);
+    let at = |p: &Point| resolve_point(p, template, landmarks).map_err(|e| err(e.to_string()));
     let resolved = match kind {
         Kind::Distance { from, to } => Resolved1::Path(vec![at(from)?, at(to)?]),
         Kind::Path { points } => {
@@ -263,7 +263,7 @@ fn resolve_kind(
             at: at(p)?,
             axis: [at(&axis[0])?, at(&axis[1])?],
             across: None,
-            only: group_triangles(template, group.as_deref()).map_err(err)?,
+            only: group_triangles(template, group.as_deref()).map_err(|e| err(e.to_string()))?,
         }),
         Kind::Width {
             at: p,
@@ -274,12 +274,12 @@ fn resolve_kind(
             at: at(p)?,
             axis: [at(&axis[0])?, at(&axis[1])?],
             across: Some([at(&across[0])?, at(&across[1])?]),
-            only: group_triangles(template, group.as_deref()).map_err(err)?,
+            only: group_triangles(template, group.as_deref()).map_err(|e| err(e.to_string()))?,
         }),
         Kind::Height { point } => Resolved1::Height(at(point)?),
         Kind::Area { group } => Resolved1::Area(
             group_triangles(template, group.as_deref())
-                .map_err(err)?
+                .map_err(|e| err(e.to_string()))?
                 .map(|(_, inside)| {
                     (0..inside.len() as u32)
                         .filter(|&t| inside[t as usize])
@@ -325,18 +325,39 @@ fn resolve_kind(
 /// A point fixed on the template: the vertices whose centroid it is.
 type Fixed = Vec<u32>;
 
+/// A place or group a definition names that the template does not have.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+enum PlaceError {
+    #[error("vertex {vertex}, but the template has {vertices} vertices")]
+    Vertex { vertex: u32, vertices: usize },
+    #[error("landmark '{name}' is not one of the template's ({known})")]
+    Landmark { name: String, known: String },
+    #[error("landmark '{name}' names vertex {vertex} of {vertices}")]
+    LandmarkVertex {
+        name: String,
+        vertex: u32,
+        vertices: usize,
+    },
+    #[error("position {0:?} is not finite")]
+    Position([f64; 3]),
+    #[error("an empty list of points")]
+    EmptyList,
+    #[error("group '{group}' is not one of the template's ({has})")]
+    Group { group: String, has: String },
+    #[error("group '{0}' has no triangle of the template")]
+    EmptyGroup(String),
+}
+
 /// The triangles of vertex group `group` (all three corners in it), as a mask over the
 /// template's triangles, with the group's name; `None` without a group.
 fn group_triangles(
     template: &Mesh,
     group: Option<&str>,
-) -> Result<Option<(String, Vec<bool>)>, String> {
+) -> Result<Option<(String, Vec<bool>)>, PlaceError> {
     let Some(g) = group else { return Ok(None) };
-    let members = template.groups.get(g).ok_or_else(|| {
-        format!(
-            "group '{g}' is not one of the template's ({})",
-            template.group_names()
-        )
+    let members = template.groups.get(g).ok_or_else(|| PlaceError::Group {
+        group: g.to_string(),
+        has: template.group_names(),
     })?;
     let mut inside = vec![false; template.vertices.len()];
     for &v in members {
@@ -350,46 +371,55 @@ fn group_triangles(
         .map(|t| t.iter().all(|&v| inside[v as usize]))
         .collect();
     if !mask.iter().any(|&m| m) {
-        return Err(format!("group '{g}' has no triangle of the template"));
+        return Err(PlaceError::EmptyGroup(g.to_string()));
     }
     Ok(Some((g.to_string(), mask)))
 }
 
-fn resolve_point(p: &Point, template: &Mesh, landmarks: &[Landmark]) -> Result<Fixed, String> {
+fn resolve_point(p: &Point, template: &Mesh, landmarks: &[Landmark]) -> Result<Fixed, PlaceError> {
     let n = template.vertices.len();
     Ok(match p {
         Point::Vertex(v) if (*v as usize) < n => vec![*v],
         Point::Vertex(v) => {
-            return Err(format!("vertex {v}, but the template has {n} vertices"));
+            return Err(PlaceError::Vertex {
+                vertex: *v,
+                vertices: n,
+            });
         }
         Point::Landmark(name) => {
-            let l = landmarks.iter().find(|l| &l.name == name).ok_or_else(|| {
-                format!(
-                    "landmark '{name}' is not one of the template's ({})",
-                    landmarks
-                        .iter()
-                        .map(|l| l.name.as_str())
-                        .collect::<Vec<_>>()
-                        .join(", ")
-                )
-            })?;
+            let l =
+                landmarks
+                    .iter()
+                    .find(|l| &l.name == name)
+                    .ok_or_else(|| PlaceError::Landmark {
+                        name: name.clone(),
+                        known: landmarks
+                            .iter()
+                            .map(|l| l.name.as_str())
+                            .collect::<Vec<_>>()
+                            .join(", "),
+                    })?;
             match l.pos {
                 LandmarkPos::Vertex(v) if (v as usize) < n => vec![v],
                 LandmarkPos::Vertex(v) => {
-                    return Err(format!("landmark '{name}' names vertex {v} of {n}"));
+                    return Err(PlaceError::LandmarkVertex {
+                        name: name.clone(),
+                        vertex: v,
+                        vertices: n,
+                    });
                 }
                 LandmarkPos::Point(q) => vec![nearest(template, &q)],
             }
         }
         Point::Position(q) => {
             if !q.iter().all(|c| c.is_finite()) {
-                return Err(format!("position {q:?} is not finite"));
+                return Err(PlaceError::Position(*q));
             }
             vec![nearest(template, &V3::from(*q))]
         }
         Point::Centroid(ps) => {
             if ps.is_empty() {
-                return Err("an empty list of points".into());
+                return Err(PlaceError::EmptyList);
             }
             let mut all = Vec::new();
             for q in ps {

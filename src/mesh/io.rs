@@ -39,7 +39,7 @@ pub fn mesh_from_bytes(path: &Path, bytes: &[u8]) -> Result<Mesh, FileError> {
     }?;
     // held here, not in the format readers: a coordinate of 1e300 is valid PLY
     mesh.check_coordinates("the mesh")
-        .map_err(|msg| content_err(&name, msg))?;
+        .map_err(|e| content_err(&name, e.to_string()))?;
     Ok(mesh)
 }
 

@@ -1,7 +1,7 @@
 //! Landmark files: text lines `name vertex_index` (on a template) or `name x y z` (on a
 //! scan), `#` comments; and MeshLab picked-points `.pp` files. Landmarks pair up by name.
 
-use super::{Mesh, V3};
+use super::V3;
 use crate::files::FileError;
 use std::path::Path;
 
@@ -76,14 +76,25 @@ pub fn parse_text(path: &str, bytes: &[u8]) -> Result<Vec<Landmark>, FileError> 
                 )));
             }
         };
-        push_unique(&mut out, tok[0], pos).map_err(err)?;
+        push_unique(&mut out, tok[0], pos).map_err(|e| err(e.to_string()))?;
     }
     Ok(out)
 }
 
-fn push_unique(out: &mut Vec<Landmark>, name: &str, pos: LandmarkPos) -> Result<(), String> {
+/// A landmark that cannot be used as given.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum LandmarkError {
+    #[error("landmark '{0}' appears twice")]
+    Twice(String),
+    #[error(
+        "scan landmark '{name}' is given as vertex index {vertex}; a scan's landmarks are points, one 'name x y z' line each (vertex indices belong in a template's landmark file)"
+    )]
+    ScanVertex { name: String, vertex: u32 },
+}
+
+fn push_unique(out: &mut Vec<Landmark>, name: &str, pos: LandmarkPos) -> Result<(), LandmarkError> {
     if out.iter().any(|l| l.name == name) {
-        return Err(format!("landmark '{name}' appears twice"));
+        return Err(LandmarkError::Twice(name.to_string()));
     }
     out.push(Landmark {
         name: name.to_string(),
@@ -134,7 +145,7 @@ pub fn parse_pp(path: &str, bytes: &[u8]) -> Result<Vec<Landmark>, FileError> {
                 &name,
                 LandmarkPos::Point(V3::new(c[0], c[1], c[2])),
             )
-            .map_err(err)?;
+            .map_err(|e| err(e.to_string()))?;
         }
         offset += start + end;
         rest = &text[offset..];
@@ -152,38 +163,17 @@ pub fn landmarks_text(lms: &[Landmark]) -> String {
         .collect()
 }
 
-/// Resolves landmarks to positions on `mesh`: vertex indices are looked up (an index out
-/// of range is an error naming the landmark), points are taken as they are.
-pub fn resolve(lms: &[Landmark], mesh: &Mesh) -> Result<Vec<(String, V3)>, String> {
-    lms.iter()
-        .map(|l| match l.pos {
-            LandmarkPos::Point(p) => Ok((l.name.clone(), p)),
-            LandmarkPos::Vertex(i) => mesh
-                .vertices
-                .get(i as usize)
-                .map(|v| (l.name.clone(), *v))
-                .ok_or_else(|| {
-                    format!(
-                        "landmark '{}' names vertex {i}, but the mesh has {} vertices",
-                        l.name,
-                        mesh.vertices.len()
-                    )
-                }),
-        })
-        .collect()
-}
-
 /// Scan landmarks as points. A landmark given as a vertex index is refused: a scan's
 /// points come in no fixed order (a reconstruction numbers them anew each time), so an
 /// index from a template's landmark file, used on a scan, names an arbitrary point.
-pub fn scan_points(lms: &[Landmark]) -> Result<Vec<(String, V3)>, String> {
+pub fn scan_points(lms: &[Landmark]) -> Result<Vec<(String, V3)>, LandmarkError> {
     lms.iter()
         .map(|l| match l.pos {
             LandmarkPos::Point(p) => Ok((l.name.clone(), p)),
-            LandmarkPos::Vertex(i) => Err(format!(
-                "scan landmark '{}' is given as vertex index {i}; a scan's landmarks are points, one 'name x y z' line each (vertex indices belong in a template's landmark file)",
-                l.name
-            )),
+            LandmarkPos::Vertex(vertex) => Err(LandmarkError::ScanVertex {
+                name: l.name.clone(),
+                vertex,
+            }),
         })
         .collect()
 }

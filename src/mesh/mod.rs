@@ -208,48 +208,93 @@ impl Mesh {
 
     /// Checks that every coordinate lies within [`MAX_COORDINATE`] of the origin; `what`
     /// names the mesh in the error.
-    pub fn check_coordinates(&self, what: &str) -> Result<(), String> {
+    pub fn check_coordinates(&self, what: &str) -> Result<(), MeshError> {
         match self
             .vertices
             .iter()
             .enumerate()
             .find(|(_, p)| p.iter().any(|c| !(c.abs() <= MAX_COORDINATE)))
         {
-            Some((i, p)) => Err(format!(
-                "{what}: vertex {i} at ({:e}, {:e}, {:e}) lies beyond {MAX_COORDINATE:e} from the origin",
-                p.x, p.y, p.z
-            )),
+            Some((index, p)) => Err(MeshError::TooFar {
+                what: what.to_string(),
+                index,
+                at: [p.x, p.y, p.z],
+            }),
             None => Ok(()),
         }
     }
 
     /// Checks that every index is in range and every coordinate finite; `what` names the
     /// mesh in the error.
-    pub fn validate(&self, what: &str) -> Result<(), String> {
+    pub fn validate(&self, what: &str) -> Result<(), MeshError> {
         let n = self.vertices.len() as u32;
-        if let Some(i) = self
+        if let Some(index) = self
             .vertices
             .iter()
             .position(|v| !v.iter().all(|c| c.is_finite()))
         {
-            return Err(format!("{what}: vertex {i} has a non-finite coordinate"));
+            return Err(MeshError::NonFinite {
+                what: what.to_string(),
+                index,
+            });
         }
-        if let Some(t) = self
+        if let Some(triangle) = self
             .triangles
             .iter()
             .position(|t| t.iter().any(|&i| i >= n))
         {
-            return Err(format!(
-                "{what}: triangle {t} refers to a vertex index out of range (the mesh has {n} vertices)"
-            ));
+            return Err(MeshError::IndexOutOfRange {
+                what: what.to_string(),
+                triangle,
+                vertices: self.vertices.len(),
+            });
         }
         if let Some(ns) = &self.normals
             && ns.len() != self.vertices.len()
         {
-            return Err(format!("{what}: {} normals for {} vertices", ns.len(), n));
+            return Err(MeshError::NormalCount {
+                what: what.to_string(),
+                normals: ns.len(),
+                vertices: self.vertices.len(),
+            });
         }
         Ok(())
     }
+}
+
+/// Why a mesh is unfit for geometry; `what` names the mesh (the template, the scan, a
+/// file's mesh).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum MeshError {
+    #[error("{what}: vertex {index} has a non-finite coordinate")]
+    NonFinite { what: String, index: usize },
+    #[error(
+        "{what}: triangle {triangle} refers to a vertex index out of range (the mesh has {vertices} vertices)"
+    )]
+    IndexOutOfRange {
+        what: String,
+        triangle: usize,
+        vertices: usize,
+    },
+    #[error("{what}: {normals} normals for {vertices} vertices")]
+    NormalCount {
+        what: String,
+        normals: usize,
+        vertices: usize,
+    },
+    #[error(
+        "{what}: vertex {index} at ({:e}, {:e}, {:e}) lies beyond {MAX_COORDINATE:e} from the origin",
+        at[0], at[1], at[2]
+    )]
+    TooFar {
+        what: String,
+        index: usize,
+        at: [f64; 3],
+    },
+    #[error("{what}: all {points} points lie in one place (no extent)")]
+    NoExtent { what: String, points: usize },
+    #[error("{what}: all {points} points lie on one line (no surface)")]
+    OnALine { what: String, points: usize },
 }
 
 /// Largest coordinate accepted (kilometres in millimetres); beyond it squared distances

@@ -65,18 +65,21 @@ pub enum Align {
 }
 
 impl std::str::FromStr for Align {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
+    type Err = UnknownAlign;
+    fn from_str(s: &str) -> Result<Self, UnknownAlign> {
         match s {
             "procrustes" => Ok(Align::Procrustes),
             "rigid" => Ok(Align::Rigid),
             "none" => Ok(Align::None),
-            _ => Err(format!(
-                "unknown alignment '{s}' (expected procrustes, rigid or none)"
-            )),
+            _ => Err(UnknownAlign(s.to_string())),
         }
     }
 }
+
+/// An alignment name that is not one of [`Align`]'s.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("unknown alignment '{0}' (expected procrustes, rigid or none)")]
+pub struct UnknownAlign(pub String);
 
 #[derive(Debug, Clone)]
 pub struct BuildOptions {

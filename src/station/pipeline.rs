@@ -553,9 +553,9 @@ impl Pipeline {
         // each capture's fit would fail on it: said once, here, and by `check`
         cfg.conform
             .check_groups(&template)
-            .map_err(|msg| PipelineError::Conform {
+            .map_err(|e| PipelineError::Conform {
                 file: cfg.file.display().to_string(),
-                msg,
+                msg: e.to_string(),
             })?;
         let measuring =
             Measuring::from_config(cfg, figure, &template, template_landmarks.as_deref())?;
@@ -629,7 +629,7 @@ impl Pipeline {
             }
             (Some(s), Some(t)) => {
                 let placed: Vec<PlacedLandmark> = crate::mesh::landmarks::scan_points(s)
-                    .map_err(bad)?
+                    .map_err(|e| bad(e.to_string()))?
                     .into_iter()
                     .map(|(name, p)| PlacedLandmark {
                         name,
@@ -637,7 +637,8 @@ impl Pipeline {
                     })
                     .collect();
                 let names: Vec<String> = t.iter().map(|l| l.name.clone()).collect();
-                let checked = super::placed::check(&placed, &names, scan).map_err(bad)?;
+                let checked =
+                    super::placed::check(&placed, &names, scan).map_err(|e| bad(e.to_string()))?;
                 (Some(checked), Some(placed))
             }
         })

@@ -17,14 +17,11 @@ pub fn check(
     placed: &[PlacedLandmark],
     names: &[String],
     scan: &Mesh,
-) -> Result<Vec<Landmark>, String> {
+) -> Result<Vec<Landmark>, PlacedError> {
     if placed.len() < MIN_PLACED {
-        return Err(format!(
-            "{} landmark(s) placed; the fit needs at least {MIN_PLACED} that are not all in one plane",
-            placed.len()
-        ));
+        return Err(PlacedError::TooFew(placed.len()));
     }
-    let (lo, hi) = scan.bounding_box().ok_or("the scan has no points")?;
+    let (lo, hi) = scan.bounding_box().ok_or(PlacedError::EmptyScan)?;
     let diag = (hi - lo).norm();
     let grow = V3::repeat(0.05 * diag);
     let mut out: Vec<Landmark> = Vec::with_capacity(placed.len());
@@ -32,33 +29,31 @@ pub fn check(
         if !names.contains(&p.name) {
             let mut known: Vec<&str> = names.iter().map(String::as_str).collect();
             known.truncate(40);
-            return Err(format!(
-                "'{}' is not one of the template's landmarks ({})",
-                p.name,
-                known.join(", ")
-            ));
+            return Err(PlacedError::UnknownName {
+                name: p.name.clone(),
+                known: known.join(", "),
+            });
         }
         if out.iter().any(|l| l.name == p.name) {
-            return Err(format!("'{}' is placed twice", p.name));
+            return Err(PlacedError::Twice(p.name.clone()));
         }
         if !p.position.iter().all(|c| c.is_finite()) {
-            return Err(format!("'{}' has a non-finite coordinate", p.name));
+            return Err(PlacedError::NonFinite(p.name.clone()));
         }
         let q = V3::from(p.position);
         if (0..3).any(|k| q[k] < lo[k] - grow[k] || q[k] > hi[k] + grow[k]) {
-            return Err(format!(
-                "'{}' at ({:.4}, {:.4}, {:.4}) is off the scan (its box is ({:.4}, {:.4}, {:.4}) to ({:.4}, {:.4}, {:.4}))",
-                p.name, q.x, q.y, q.z, lo.x, lo.y, lo.z, hi.x, hi.y, hi.z
-            ));
+            return Err(PlacedError::OffScan {
+                name: p.name.clone(),
+                at: q.into(),
+                low: lo.into(),
+                high: hi.into(),
+            });
         }
         if let Some(same) = out.iter().find(|l| match l.pos {
             LandmarkPos::Point(o) => (o - q).norm() < 1e-6 * diag,
             LandmarkPos::Vertex(_) => false,
         }) {
-            return Err(format!(
-                "'{}' and '{}' are at the same place",
-                same.name, p.name
-            ));
+            return Err(PlacedError::SamePlace(same.name.clone(), p.name.clone()));
         }
         out.push(Landmark {
             name: p.name.clone(),
@@ -75,11 +70,40 @@ pub fn check(
     let eig = cov.symmetric_eigenvalues();
     let (min, max) = (eig.min().max(0.0), eig.max());
     if max <= 0.0 || (min / max).sqrt() < 1e-3 {
-        return Err(
-            "the landmarks all lie in one plane (or on a line): place one off that plane".into(),
-        );
+        return Err(PlacedError::Flat);
     }
     Ok(out)
+}
+
+/// Why a set of placed landmarks is refused.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum PlacedError {
+    #[error(
+        "{0} landmark(s) placed; the fit needs at least {MIN_PLACED} that are not all in one plane"
+    )]
+    TooFew(usize),
+    #[error("the scan has no points")]
+    EmptyScan,
+    #[error("'{name}' is not one of the template's landmarks ({known})")]
+    UnknownName { name: String, known: String },
+    #[error("'{0}' is placed twice")]
+    Twice(String),
+    #[error("'{0}' has a non-finite coordinate")]
+    NonFinite(String),
+    #[error(
+        "'{name}' at ({:.4}, {:.4}, {:.4}) is off the scan (its box is ({:.4}, {:.4}, {:.4}) to ({:.4}, {:.4}, {:.4}))",
+        at[0], at[1], at[2], low[0], low[1], low[2], high[0], high[1], high[2]
+    )]
+    OffScan {
+        name: String,
+        at: [f64; 3],
+        low: [f64; 3],
+        high: [f64; 3],
+    },
+    #[error("'{0}' and '{1}' are at the same place")]
+    SamePlace(String, String),
+    #[error("the landmarks all lie in one plane (or on a line): place one off that plane")]
+    Flat,
 }
 
 /// The landmark file of an operator's landmarks, with a line saying where they came from.
@@ -117,22 +141,23 @@ mod tests {
         let lms = check(&good, &names, &scan).unwrap();
         assert_eq!(lms.len(), 4);
         let err = |placed: &[PlacedLandmark]| check(placed, &names, &scan).unwrap_err();
-        assert!(err(&good[..3]).contains("at least 4"));
+        assert_eq!(err(&good[..3]), PlacedError::TooFew(3));
+        assert!(err(&good[..3]).to_string().contains("at least 4"));
         let mut bad = good.clone();
         bad[3].name = "snout".into();
-        assert!(err(&bad).contains("'snout' is not one of"));
+        assert!(matches!(err(&bad), PlacedError::UnknownName { name, .. } if name == "snout"));
         bad[3].name = "a".into();
-        assert!(err(&bad).contains("placed twice"));
+        assert_eq!(err(&bad), PlacedError::Twice("a".into()));
         bad = good.clone();
         bad[2].position[1] = f64::NAN;
-        assert!(err(&bad).contains("non-finite"));
+        assert_eq!(err(&bad), PlacedError::NonFinite("c".into()));
         bad[2].position[1] = 5.0;
-        assert!(err(&bad).contains("off the scan"));
+        assert!(matches!(err(&bad), PlacedError::OffScan { name, .. } if name == "c"));
         bad = good.clone();
         bad[3].position = [1.0, 1.0, 0.0];
-        assert!(err(&bad).contains("one plane"));
+        assert_eq!(err(&bad), PlacedError::Flat);
         bad[3] = at("d", [0.0, 0.0, 0.0]);
-        assert!(err(&bad).contains("same place"));
+        assert_eq!(err(&bad), PlacedError::SamePlace("a".into(), "d".into()));
         let t = text(&lms, "c-1");
         let back = crate::mesh::landmarks::parse_text("t", t.as_bytes()).unwrap();
         assert_eq!(back, lms);

@@ -27,7 +27,7 @@ pub struct RecordedCalibration {
 /// Reads a Middlebury 2014 `calib.txt` (`cam0=[f 0 cx; 0 f cy; 0 0 1]`, `cam1=`,
 /// `baseline=` in mm, `ndisp=`) or a KITTI one (`P0:` and `P1:`, 3x4 projections of the
 /// rectified grey cameras, `P1`'s fourth entry `-f B` in metres).
-pub fn parse_calibration(text: &str) -> Result<RecordedCalibration, String> {
+pub fn parse_calibration(text: &str) -> Result<RecordedCalibration, RecordedCalibrationError> {
     // a key given twice has two values, and which one counts would be a guess
     let mut seen = std::collections::BTreeMap::new();
     for (n, l) in text.lines().enumerate() {
@@ -40,11 +40,11 @@ pub fn parse_calibration(text: &str) -> Result<RecordedCalibration, String> {
             continue;
         };
         if let Some(first) = seen.insert(k.to_string(), n + 1) {
-            return Err(format!(
-                "'{}' is given twice (lines {first} and {})",
-                k.escape_default(),
-                n + 1
-            ));
+            return Err(RecordedCalibrationError::Twice {
+                key: k.escape_default().to_string(),
+                first,
+                second: n + 1,
+            });
         }
     }
     let value = |key: &str, sep: char| -> Option<&str> {
@@ -53,29 +53,35 @@ pub fn parse_calibration(text: &str) -> Result<RecordedCalibration, String> {
             (k.trim() == key).then_some(v.trim())
         })
     };
-    let numbers = |v: &str, what: &str| -> Result<Vec<f64>, String> {
+    let numbers = |v: &str, what: &'static str| -> Result<Vec<f64>, RecordedCalibrationError> {
         v.split(|c: char| c.is_whitespace() || matches!(c, '[' | ']' | ';'))
             .filter(|s| !s.is_empty())
             .map(|s| {
                 s.parse::<f64>()
                     .ok()
                     .filter(|x| x.is_finite())
-                    .ok_or_else(|| format!("{what}: '{s}' is not a number"))
+                    .ok_or_else(|| RecordedCalibrationError::NotANumber {
+                        what,
+                        value: s.to_string(),
+                    })
             })
             .collect()
     };
     let c = if let (Some(c0), Some(c1)) = (value("cam0", '='), value("cam1", '=')) {
         let (k0, k1) = (numbers(c0, "cam0")?, numbers(c1, "cam1")?);
         if k0.len() != 9 || k1.len() != 9 {
-            return Err("cam0 and cam1 must be 3x3 matrices [f 0 cx; 0 f cy; 0 0 1]".into());
+            return Err(RecordedCalibrationError::Cameras);
         }
-        let b = value("baseline", '=').ok_or("no baseline= (mm)")?;
+        let b = value("baseline", '=').ok_or(RecordedCalibrationError::NoBaseline)?;
         let b = numbers(b, "baseline")?;
-        let count = |key: &str| -> Result<Option<u32>, String> {
+        let count = |key: &'static str| -> Result<Option<u32>, RecordedCalibrationError> {
             value(key, '=')
                 .map(|v| {
                     v.parse::<u32>()
-                        .map_err(|_| format!("{key}: '{v}' is not a count"))
+                        .map_err(|_| RecordedCalibrationError::NotACount {
+                            key,
+                            value: v.to_string(),
+                        })
                 })
                 .transpose()
         };
@@ -83,14 +89,14 @@ pub fn parse_calibration(text: &str) -> Result<RecordedCalibration, String> {
         let size = match (count("width")?, count("height")?) {
             (Some(w), Some(h)) => Some((w, h)),
             (None, None) => None,
-            _ => return Err("width= and height= come together".into()),
+            _ => return Err(RecordedCalibrationError::HalfSize),
         };
         // doffs is cam1's cx less cam0's: a file where they disagree is not one pair's
         if let Some(d) = value("doffs", '=') {
             let d = numbers(d, "doffs")?;
             let want = k1[2] - k0[2];
             if d.len() != 1 || (d[0] - want).abs() > 0.5 + 1e-3 * want.abs() {
-                return Err(format!("doffs {d:?} is not cam1's cx less cam0's ({want})"));
+                return Err(RecordedCalibrationError::Doffs { given: d, want });
             }
         }
         RecordedCalibration {
@@ -105,7 +111,7 @@ pub fn parse_calibration(text: &str) -> Result<RecordedCalibration, String> {
     } else if let (Some(p0), Some(p1)) = (value("P0", ':'), value("P1", ':')) {
         let (p0, p1) = (numbers(p0, "P0")?, numbers(p1, "P1")?);
         if p0.len() != 12 || p1.len() != 12 {
-            return Err("P0 and P1 must be 3x4 projection matrices (12 numbers)".into());
+            return Err(RecordedCalibrationError::Projections);
         }
         RecordedCalibration {
             focal: p0[0],
@@ -117,18 +123,46 @@ pub fn parse_calibration(text: &str) -> Result<RecordedCalibration, String> {
             size: None,
         }
     } else {
-        return Err(
-            "neither a Middlebury calibration (cam0=, cam1=, baseline=) nor a KITTI one (P0:, P1:)"
-                .into(),
-        );
+        return Err(RecordedCalibrationError::Neither);
     };
     if !(c.focal > 0.0 && c.baseline > 0.0 && c.baseline.is_finite()) {
-        return Err(format!(
-            "focal length {} px and baseline {} m must be positive",
-            c.focal, c.baseline
-        ));
+        return Err(RecordedCalibrationError::NotPositive {
+            focal: c.focal,
+            baseline: c.baseline,
+        });
     }
     Ok(c)
+}
+
+/// Why a recorded pair's calibration file could not be read.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum RecordedCalibrationError {
+    #[error("'{key}' is given twice (lines {first} and {second})")]
+    Twice {
+        key: String,
+        first: usize,
+        second: usize,
+    },
+    #[error("{what}: '{value}' is not a number")]
+    NotANumber { what: &'static str, value: String },
+    #[error("cam0 and cam1 must be 3x3 matrices [f 0 cx; 0 f cy; 0 0 1]")]
+    Cameras,
+    #[error("no baseline= (mm)")]
+    NoBaseline,
+    #[error("{key}: '{value}' is not a count")]
+    NotACount { key: &'static str, value: String },
+    #[error("width= and height= come together")]
+    HalfSize,
+    #[error("doffs {given:?} is not cam1's cx less cam0's ({want})")]
+    Doffs { given: Vec<f64>, want: f64 },
+    #[error("P0 and P1 must be 3x4 projection matrices (12 numbers)")]
+    Projections,
+    #[error(
+        "neither a Middlebury calibration (cam0=, cam1=, baseline=) nor a KITTI one (P0:, P1:)"
+    )]
+    Neither,
+    #[error("focal length {focal} px and baseline {baseline} m must be positive")]
+    NotPositive { focal: f64, baseline: f64 },
 }
 
 impl RecordedCalibration {
@@ -223,9 +257,10 @@ mod tests {
         assert!(
             parse_calibration("cam0=[1 0 2; 0 1 2; 0 0 1]\ncam1=[1 0 x; 0 1 2; 0 0 1]\nbaseline=1")
                 .unwrap_err()
+                .to_string()
                 .contains("'x'")
         );
-        assert!(parse_calibration("hello").unwrap_err().contains("neither"));
+        assert!(parse_calibration("hello").unwrap_err() == RecordedCalibrationError::Neither);
         assert_eq!(m.size, Some((2964, 1988)));
         // careless files: a key twice, doffs that is not the cx difference or not a
         // number, half a size
@@ -235,7 +270,7 @@ mod tests {
             ))
         };
         assert!(mb("doffs=131.111\n").is_ok());
-        let e = mb("baseline=19.3\n").unwrap_err();
+        let e = mb("baseline=19.3\n").unwrap_err().to_string();
         assert!(
             e.contains("'baseline' is given twice (lines 3 and 4)"),
             "{e}"
@@ -243,17 +278,23 @@ mod tests {
         assert!(
             mb("doffs=inf\n")
                 .unwrap_err()
+                .to_string()
                 .contains("'inf' is not a number")
         );
         assert!(
             mb("doffs=12\n")
                 .unwrap_err()
+                .to_string()
                 .contains("cam1's cx less cam0's")
         );
-        assert!(mb("width=100\n").unwrap_err().contains("come together"));
+        assert_eq!(
+            mb("width=100\n").unwrap_err(),
+            RecordedCalibrationError::HalfSize
+        );
         assert!(
             parse_calibration("P0: 1 0 0 0 0 1 0 0 0 0 1 0\nP1: 1 0 0 5 0 1 0 0 0 0 1 0")
                 .unwrap_err()
+                .to_string()
                 .contains("positive")
         );
     }

@@ -75,44 +75,39 @@ impl RigFile {
     pub fn parse(name: &str, text: &str) -> Result<RigFile, FileError> {
         let rig: RigFile =
             toml::from_str(text).map_err(|e| FileError::content(name, e.to_string()))?;
-        rig.check().map_err(|msg| FileError::content(name, msg))?;
+        rig.check()
+            .map_err(|e| FileError::content(name, e.to_string()))?;
         Ok(rig)
     }
 
     /// Checks what the types cannot: pods present, ids plain and distinct, finite
     /// positive optics, rotations that are rotations, a working volume with min < max.
-    pub fn check(&self) -> Result<(), String> {
+    pub fn check(&self) -> Result<(), RigFileError> {
         if self.pods.is_empty() {
-            return Err("no [[pods]]".into());
+            return Err(RigFileError::NoPods);
         }
         if let Some(o) = &self.reconstruct {
-            o.sgbm
-                .validate()
-                .map_err(|e| format!("[reconstruct.sgbm]: {e}"))?;
+            o.sgbm.validate()?;
         }
         if let Some([lo, hi]) = self.working_volume
             && !(0..3).all(|i| lo[i].is_finite() && hi[i].is_finite() && lo[i] < hi[i])
         {
-            return Err(format!(
-                "working_volume {lo:?} .. {hi:?}: every minimum must be below its maximum"
-            ));
+            return Err(RigFileError::WorkingVolume(lo, hi));
         }
         let mut ids = std::collections::BTreeSet::new();
         for p in &self.pods {
             crate::paths::check_plain_name("pod id", &p.id)?;
             if !ids.insert(p.id.as_str()) {
-                return Err(format!("two pods have the id '{}'", p.id));
+                return Err(RigFileError::TwoPods(p.id.clone()));
             }
+            let bad = |what: PodFault| Err(RigFileError::Pod(p.id.clone(), what));
             if let Some(rows) = p.rotation {
                 let r = Matrix3::from_fn(|i, j| rows[i][j]);
                 if !r.iter().all(|v| v.is_finite())
                     || (r * r.transpose() - Matrix3::identity()).norm() > 1e-6
                     || r.determinant() < 0.0
                 {
-                    return Err(format!(
-                        "pod {}: rotation is not a rotation matrix (orthonormal rows, determinant 1)",
-                        p.id
-                    ));
+                    return bad(PodFault::NotARotation);
                 }
             }
             if !(p.baseline > 0.0
@@ -122,10 +117,7 @@ impl RigFile {
                 && (16..=20_000).contains(&p.image[0])
                 && (16..=20_000).contains(&p.image[1]))
             {
-                return Err(format!(
-                    "pod {}: baseline and focal_px must be positive and finite, image 16 to 20000 pixels a side",
-                    p.id
-                ));
+                return bad(PodFault::Optics);
             }
             let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
             if !finite(&p.position)
@@ -133,10 +125,7 @@ impl RigFile {
                 || !finite(&p.up)
                 || !finite(&p.distortion)
             {
-                return Err(format!(
-                    "pod {}: position, look_at, up and distortion must be finite",
-                    p.id
-                ));
+                return bad(PodFault::NotFinite);
             }
             if p.rotation.is_none() {
                 let (eye, at, up) = (V3::from(p.position), V3::from(p.look_at), V3::from(p.up));
@@ -144,10 +133,7 @@ impl RigFile {
                 if dir.norm() < 1e-9
                     || dir.cross(&up).norm() < 1e-9 * dir.norm() * up.norm().max(1e-300)
                 {
-                    return Err(format!(
-                        "pod {}: look_at must differ from position and not lie along up",
-                        p.id
-                    ));
+                    return bad(PodFault::LookAt);
                 }
             }
         }
@@ -193,6 +179,36 @@ impl RigFile {
             })
             .collect()
     }
+}
+
+/// What is wrong in a rig file that parsed (what the types cannot say).
+#[derive(Debug, thiserror::Error)]
+pub enum RigFileError {
+    #[error("no [[pods]]")]
+    NoPods,
+    #[error("[reconstruct.sgbm]: {0}")]
+    Sgbm(#[from] crate::stereo::disparity::DisparityError),
+    #[error("working_volume {0:?} .. {1:?}: every minimum must be below its maximum")]
+    WorkingVolume([f64; 3], [f64; 3]),
+    #[error(transparent)]
+    Name(#[from] crate::paths::NameError),
+    #[error("two pods have the id '{0}'")]
+    TwoPods(String),
+    #[error("pod {0}: {1}")]
+    Pod(String, PodFault),
+}
+
+/// What is wrong with one pod of a rig file.
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+pub enum PodFault {
+    #[error("rotation is not a rotation matrix (orthonormal rows, determinant 1)")]
+    NotARotation,
+    #[error("baseline and focal_px must be positive and finite, image 16 to 20000 pixels a side")]
+    Optics,
+    #[error("position, look_at, up and distortion must be finite")]
+    NotFinite,
+    #[error("look_at must differ from position and not lie along up")]
+    LookAt,
 }
 
 /// Why a rig's reconstruction set-up could not be loaded; names the file.

@@ -209,7 +209,7 @@ pub fn parse_truth(path: &Path, bytes: &[u8], scale: Option<f64>) -> Result<Trut
         .unwrap_or("")
         .to_ascii_lowercase();
     match ext.as_str() {
-        "pfm" => parse_pfm(bytes).map_err(bad),
+        "pfm" => parse_pfm(bytes).map_err(|e| bad(e.to_string())),
         "png" => {
             let img = image::load_from_memory_with_format(bytes, image::ImageFormat::Png)
                 .map_err(|e| bad(e.to_string()))?;
@@ -246,7 +246,28 @@ pub fn parse_truth(path: &Path, bytes: &[u8], scale: Option<f64>) -> Result<Trut
     }
 }
 
-fn parse_pfm(bytes: &[u8]) -> Result<Truth, String> {
+/// Why a file is not a one-channel PFM conformd reads.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+enum PfmError {
+    #[error("not a one-channel PFM (header 'Pf')")]
+    NotPfm,
+    #[error("bad PFM header '{0}'")]
+    Header(String),
+    #[error("PFM size {0} x {1} out of range")]
+    Size(f64, f64),
+    #[error(
+        "PFM scale '{0}' must be a non-zero number (negative: little-endian, positive: big-endian)"
+    )]
+    Scale(String),
+    #[error("PFM data is truncated: {bytes} bytes for {width} x {height}")]
+    Truncated {
+        bytes: usize,
+        width: usize,
+        height: usize,
+    },
+}
+
+fn parse_pfm(bytes: &[u8]) -> Result<Truth, PfmError> {
     // header: "Pf", width height, scale (negative: little-endian), each on its line
     let mut fields = Vec::new();
     let mut start = 0;
@@ -261,30 +282,28 @@ fn parse_pfm(bytes: &[u8]) -> Result<Truth, String> {
         i += 1;
     }
     if fields.len() < 4 || fields[0] != "Pf" {
-        return Err("not a one-channel PFM (header 'Pf')".into());
+        return Err(PfmError::NotPfm);
     }
     let num = |s: &str| {
         s.parse::<f64>()
-            .map_err(|_| format!("bad PFM header '{s}'"))
+            .map_err(|_| PfmError::Header(s.to_string()))
     };
     let (w, h, scale) = (num(&fields[1])?, num(&fields[2])?, num(&fields[3])?);
     if !(w >= 1.0 && h >= 1.0 && w * h <= 1e8) {
-        return Err(format!("PFM size {w} x {h} out of range"));
+        return Err(PfmError::Size(w, h));
     }
     // the scale's sign gives the byte order; 0 or NaN gives none
     if !(scale.is_finite() && scale != 0.0) {
-        return Err(format!(
-            "PFM scale '{}' must be a non-zero number (negative: little-endian, positive: big-endian)",
-            fields[3]
-        ));
+        return Err(PfmError::Scale(fields[3].clone()));
     }
     let (w, h) = (w as usize, h as usize);
     let data = &bytes[start..];
     if data.len() < w * h * 4 {
-        return Err(format!(
-            "PFM data is truncated: {} bytes for {w} x {h}",
-            data.len()
-        ));
+        return Err(PfmError::Truncated {
+            bytes: data.len(),
+            width: w,
+            height: h,
+        });
     }
     let mut values = vec![f32::NAN; w * h];
     for (k, c) in data.chunks_exact(4).take(w * h).enumerate() {
@@ -422,7 +441,7 @@ mod tests {
         assert_eq!(s.known, 5);
         assert!((s.coverage - 0.8).abs() < 1e-12);
         assert!((s.bad1 - 0.25).abs() < 1e-12 && s.bad2 == 0.0);
-        assert!(parse_pfm(b"P5\n1 1\n255\n").is_err());
+        assert_eq!(parse_pfm(b"P5\n1 1\n255\n").unwrap_err(), PfmError::NotPfm);
         // a truth read at a quarter of its scale is noticed
         let big = Disparity {
             width: 200,
@@ -441,10 +460,13 @@ mod tests {
             values: big.values.clone(),
         };
         assert_eq!(scale_mismatch(&big, &same), None);
-        assert!(
-            parse_pfm(b"Pf\n4 4\n-1\n\0\0")
-                .unwrap_err()
-                .contains("truncated")
+        assert_eq!(
+            parse_pfm(b"Pf\n4 4\n-1\n\0\0").unwrap_err(),
+            PfmError::Truncated {
+                bytes: 2,
+                width: 4,
+                height: 4
+            }
         );
     }
 }

@@ -3,6 +3,7 @@
 //! open boundaries) and their known-answer cases: posed by `posing`, scanned by the
 //! virtual scanner from four sides and above, with noisy landmarks at extremities.
 
+use super::SynthError;
 use super::cases::{Case, scan_subject};
 use super::posing::{self, Extremities, PoseSettings};
 use crate::mesh::landmarks::{Landmark, LandmarkPos};
@@ -72,12 +73,12 @@ pub fn data_dir() -> PathBuf {
 }
 
 /// Loads a mesh of the set turned z-up (the virtual station's cameras look across z).
-pub fn load(name: &str) -> Result<Mesh, String> {
+pub fn load(name: &str) -> Result<Mesh, SynthError> {
     let m = MESHES
         .iter()
         .find(|m| m.name == name)
-        .ok_or_else(|| format!("no development mesh '{name}'"))?;
-    let mut mesh = io::read_mesh(&data_dir().join(m.file)).map_err(|e| e.to_string())?;
+        .ok_or_else(|| SynthError::NoMesh(name.to_string()))?;
+    let mut mesh = io::read_mesh(&data_dir().join(m.file))?;
     for v in &mut mesh.vertices {
         *v = V3::new(v.x, -v.z, v.y);
     }
@@ -373,30 +374,34 @@ fn landmark_pairs(
 
 /// Writes a case for the peer script (`benches/peer/trimesh_sumner.py`): template,
 /// scan, truth, per-vertex hole flags and, when used, both landmark files.
-pub fn export(case: &Case, landmarks: bool, dir: &std::path::Path) -> Result<(), String> {
+pub fn export(case: &Case, landmarks: bool, dir: &std::path::Path) -> Result<(), SynthError> {
     use crate::mesh::io::write_mesh;
     use crate::mesh::landmarks::landmarks_text;
-    let err = |e: &dyn std::fmt::Display| e.to_string();
-    std::fs::create_dir_all(dir).map_err(|e| err(&e))?;
-    let truth = case.truth.clone().ok_or("the case has no truth")?;
-    write_mesh(&dir.join("template.obj"), &case.template).map_err(|e| err(&e))?;
-    write_mesh(&dir.join("scan.ply"), &case.scan).map_err(|e| err(&e))?;
+    let write = |name: &str, text: String| {
+        let path = dir.join(name);
+        std::fs::write(&path, text).map_err(|source| SynthError::Io {
+            path: path.display().to_string(),
+            source,
+        })
+    };
+    std::fs::create_dir_all(dir).map_err(|source| SynthError::Io {
+        path: dir.display().to_string(),
+        source,
+    })?;
+    let truth = case.truth.clone().ok_or(SynthError::NoTruth)?;
+    write_mesh(&dir.join("template.obj"), &case.template)?;
+    write_mesh(&dir.join("scan.ply"), &case.scan)?;
     let t = Mesh::new(truth, case.template.triangles.clone());
-    write_mesh(&dir.join("truth.obj"), &t).map_err(|e| err(&e))?;
+    write_mesh(&dir.join("truth.obj"), &t)?;
     let holes: String = case
         .in_hole
         .iter()
         .map(|h| if *h { "1\n" } else { "0\n" })
         .collect();
-    std::fs::write(dir.join("in_hole.txt"), holes).map_err(|e| err(&e))?;
+    write("in_hole.txt", holes)?;
     if landmarks {
-        std::fs::write(
-            dir.join("template.lm"),
-            landmarks_text(&case.template_landmarks),
-        )
-        .map_err(|e| err(&e))?;
-        std::fs::write(dir.join("scan.lm"), landmarks_text(&case.scan_landmarks))
-            .map_err(|e| err(&e))?;
+        write("template.lm", landmarks_text(&case.template_landmarks))?;
+        write("scan.lm", landmarks_text(&case.scan_landmarks))?;
     }
     Ok(())
 }
@@ -436,7 +441,7 @@ impl DevCase {
 /// The development table: every mesh posed and scanned, with landmarks and without
 /// (turned 20 degrees, shifted 5%), plus a harder posture of the koala. The cat is made
 /// uneven (edge CV >= 0.3) and opened by three holes, as an outside template is.
-pub fn standard_cases(names: &[&str]) -> Result<Vec<DevCase>, String> {
+pub fn standard_cases(names: &[&str]) -> Result<Vec<DevCase>, SynthError> {
     let mut out = Vec::new();
     for m in MESHES {
         if VALIDATION_MESHES.contains(&m.name) || (!names.is_empty() && !names.contains(&m.name)) {
@@ -505,38 +510,34 @@ pub fn captured_template_case(
     station: &mut crate::stereo::rig::Reconstruction,
     rig: &crate::stereo::rig::RigFile,
     seed: u64,
-) -> Result<Case, String> {
+) -> Result<Case, SynthError> {
     use crate::template::{self, Kind};
     use parry3d_f64::math::Vector as PVec;
     use parry3d_f64::query::PointQueryWithLocation;
     use parry3d_f64::shape::TriMesh;
     let fig = template::build(Kind::Pig, 20_000);
-    let posed = |p: &str| -> Result<Mesh, String> {
+    let posed = |p: &str| -> Result<Mesh, SynthError> {
         let names: Vec<&str> = template::pose_parameters(Kind::Pig)
             .iter()
             .map(|p| p.0)
             .collect();
-        let params = template::parse_parameters(p, &names, "pose").map_err(|e| e.to_string())?;
-        template::subject(
+        let params = template::parse_parameters(p, &names, "pose")?;
+        Ok(template::subject(
             &fig,
             Kind::Pig,
             &std::collections::BTreeMap::new(),
             &template::pose(Kind::Pig, &params),
-        )
-        .map_err(|e| e.to_string())
+        )?)
     };
     let a = posed("nod=8,leg_fl=12,tail=-10")?;
     let b = posed("swing=14,nod=-12,twist=6,leg_hl=-18,leg_fr=15,tail=25")?;
-    let mut capture = |subject: &Mesh, as_mesh: bool, seed: u64| -> Result<Mesh, String> {
+    let mut capture = |subject: &Mesh, as_mesh: bool, seed: u64| -> Result<Mesh, SynthError> {
         let rendered = super::virtual_rig::render_rig(rig, subject, 2.0, seed);
         let pairs: Vec<(Vec<u8>, Vec<u8>)> = rendered
             .chunks(2)
             .map(|p| (p[0].pixels.clone(), p[1].pixels.clone()))
             .collect();
-        station
-            .run(&pairs, as_mesh)
-            .map(|(m, _)| m)
-            .map_err(|e| e.to_string())
+        Ok(station.run(&pairs, as_mesh).map(|(m, _)| m)?)
     };
     let tpl = capture(&a, true, seed)?;
     let scan = capture(&b, false, seed + 1)?;
@@ -546,7 +547,8 @@ pub fn captured_template_case(
         .iter()
         .map(|p| PVec::new(p.x, p.y, p.z))
         .collect();
-    let tm = TriMesh::new(verts, a.triangles.clone()).map_err(|e| format!("{e:?}"))?;
+    let tm = TriMesh::new(verts, a.triangles.clone())
+        .map_err(|e| SynthError::Triangles(format!("{e:?}")))?;
     let truth: Vec<V3> = tpl
         .vertices
         .iter()
@@ -559,7 +561,7 @@ pub fn captured_template_case(
         })
         .collect();
     // a vertex is in a hole where the second capture saw nothing near its true place
-    let surface = crate::conform::correspond::ScanSurface::new(&scan).map_err(|e| e.to_string())?;
+    let surface = crate::conform::correspond::ScanSurface::new(&scan)?;
     let gap = 5.0 * surface.spacing;
     let in_hole: Vec<bool> = truth
         .iter()
@@ -604,11 +606,10 @@ pub fn farthest_points(p: &[V3], count: usize) -> Vec<u32> {
 }
 
 /// The captured-scan-as-template cases (with landmarks and without), on the example rig.
-pub fn captured_cases() -> Result<Vec<DevCase>, String> {
+pub fn captured_cases() -> Result<Vec<DevCase>, SynthError> {
     let rig_path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/rig.example.toml");
-    let rig = crate::stereo::rig::RigFile::load(&rig_path).map_err(|e| e.to_string())?;
-    let mut station =
-        crate::stereo::rig::Reconstruction::load(&rig_path, None).map_err(|e| e.to_string())?;
+    let rig = crate::stereo::rig::RigFile::load(&rig_path)?;
+    let mut station = crate::stereo::rig::Reconstruction::load(&rig_path, None)?;
     let case = captured_template_case(&mut station, &rig, 21)?;
     let again = Case {
         template: case.template.clone(),
@@ -754,7 +755,7 @@ pub fn large_posture(seed: u64, heading: f64) -> DevCaseSpec {
 /// landmarks and without (the up axis given, as a station's config does).
 /// `Part::Development` is what the defaults may be tuned on; `Part::Validation` (the cow,
 /// the dense koala, the man onto the woman, the dense SMPL-X body) is only measured.
-pub fn hard_cases(part: Part, names: &[&str]) -> Result<Vec<DevCase>, String> {
+pub fn hard_cases(part: Part, names: &[&str]) -> Result<Vec<DevCase>, SynthError> {
     let large = large_posture;
     // (name, what it is, template, subject, spec)
     let mut made: Vec<(String, Mesh, Option<Mesh>, DevCaseSpec)> = Vec::new();
@@ -793,7 +794,10 @@ pub fn hard_cases(part: Part, names: &[&str]) -> Result<Vec<DevCase>, String> {
                         .iter()
                         .find(|m| m.0 == name)
                         .map(|m| m.1 as usize)
-                        .ok_or_else(|| format!("human.marks has no {name}"))
+                        .ok_or_else(|| SynthError::NoMark {
+                            file: "human.marks".into(),
+                            name: name.into(),
+                        })
                 };
                 let eyed = with_eyes(&load("human")?, mark("nose_tip")?, mark("head_top")?);
                 made.push(("man with eyes".into(), eyed, None, large(11, -20.0)));

@@ -213,13 +213,17 @@ impl Stance {
 /// `front` is the way the person faces (level). One pose per stance of `stances` (the
 /// rig found once), vertex order kept. Fails when the rig does not find two arms and two
 /// legs.
-pub fn stand(mesh: &Mesh, front: V3, stances: &[Stance]) -> Result<Vec<Vec<V3>>, String> {
+pub fn stand(
+    mesh: &Mesh,
+    front: V3,
+    stances: &[Stance],
+) -> Result<Vec<Vec<V3>>, super::SynthError> {
     use crate::template::rig::{AutoRigSettings, TemplateRig};
     let rig = TemplateRig::automatic(mesh, &AutoRigSettings::default())?;
     let up = V3::z();
     let front = V3::new(front.x, front.y, 0.0)
         .try_normalize(1e-12)
-        .ok_or("the front is vertical")?;
+        .ok_or(super::SynthError::Posing("the front is vertical"))?;
     let left = up.cross(&front);
     stances
         .iter()
@@ -238,7 +242,7 @@ fn stance_pose(
     front: V3,
     left: V3,
     stance: Stance,
-) -> Result<crate::template::rig::RigPose, String> {
+) -> Result<crate::template::rig::RigPose, super::SynthError> {
     let dir = |b: usize| (rig.bones[b].tail - rig.bones[b].head).normalize();
     let mut pose = crate::template::rig::RigPose::rest(rig);
     let (mut arms, mut legs) = (0, 0);
@@ -277,12 +281,12 @@ fn stance_pose(
         let world = |[u, s, f]: [f64; 3]| (up * u + side * s + front * f).normalize();
         let (to_upper, to_lower) = stance.arm_directions();
         rig.point_limb(&mut pose, (upper, lower), world(to_upper), world(to_lower))
-            .ok_or("a limb bone turned exactly round")?;
+            .ok_or(super::SynthError::Posing(
+                "a limb bone turned exactly round",
+            ))?;
     }
     if arms != 2 || legs != 2 {
-        return Err(format!(
-            "the automatic rig found {arms} arms and {legs} legs, not two of each"
-        ));
+        return Err(super::SynthError::Limbs { arms, legs });
     }
     Ok(pose)
 }

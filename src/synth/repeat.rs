@@ -81,7 +81,11 @@ fn turned(x: &mut [V3], degrees: f64) {
 /// body of other proportions (and another triangulation), the koala and the man, and the
 /// man in a booth's three stances (`posing::Stance`, whatever `count`); validation
 /// (never tuned on): the cow and the woman, and the woman in the booth's stances.
-pub fn subjects(part: Part, count: usize, names: &[&str]) -> Result<Vec<Subject>, String> {
+pub fn subjects(
+    part: Part,
+    count: usize,
+    names: &[&str],
+) -> Result<Vec<Subject>, super::SynthError> {
     let list: &[(&str, Kind)] = match part {
         Part::Development => &[
             ("generic pig", Kind::Pig),
@@ -105,95 +109,11 @@ pub fn subjects(part: Part, count: usize, names: &[&str]) -> Result<Vec<Subject>
         let named = fig.landmark_vertices();
         let seed = 500 + 100 * k as u64 + if part == Part::Validation { 50 } else { 0 };
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        let mut postures = Vec::new();
-        if name.starts_with("generic ") {
-            // another individual of the template's family: other proportions, another
-            // triangulation
-            let other = template::build(kind, 8_000);
-            let shape: BTreeMap<String, f64> = match kind {
-                Kind::Pig => [
-                    ("length", 1.12),
-                    ("girth", 1.15),
-                    ("leg_length", 0.9),
-                    ("head_size", 1.1),
-                ],
-                Kind::Body => [
-                    ("height", 0.95),
-                    ("girth", 1.18),
-                    ("arm_length", 1.05),
-                    ("shoulders", 1.1),
-                ],
-            }
-            .iter()
-            .map(|(n, f)| (n.to_string(), *f))
-            .collect();
-            let marks: Vec<(String, u32)> = other.landmark_vertices().into_iter().collect();
-            for (i, pose) in template::random_postures(kind, count, 20.0, seed)
-                .iter()
-                .enumerate()
-            {
-                let mut subject =
-                    template::subject(&other, kind, &shape, pose).map_err(|e| e.to_string())?;
-                let heading = rng.random_range(-15.0..15.0);
-                turned(&mut subject.vertices, heading);
-                grounded(&mut subject.vertices);
-                postures.push(scanned(
-                    &subject,
-                    &named,
-                    &marks,
-                    V3::new(heading.to_radians().cos(), heading.to_radians().sin(), 0.0),
-                    seed + i as u64,
-                ));
-            }
+        let postures = if name.starts_with("generic ") {
+            generic_postures(kind, &named, count, seed, &mut rng)?
         } else {
-            // an outside subject, posed part-way along its limbs as it moves in a crate
-            // or a booth; or (`booth ...`) standing as a booth's people stand, the arms
-            // turned at the shoulders
-            let booth = name.strip_prefix("booth ");
-            let mesh_name = match booth {
-                Some("man") => "human",
-                Some(person) => person,
-                None => name,
-            };
-            let subject = devset::load(mesh_name)?;
-            let marks = super::semantic::marks_of(mesh_name)?;
-            let rest_front = super::semantic::rest_front(&subject, &marks)
-                .ok_or_else(|| format!("{name}: no marks that say which way it faces"))?;
-            let poses: Vec<Vec<V3>> = if booth.is_some() {
-                posing::stand(&subject, rest_front, &posing::Stance::ALL)?
-            } else {
-                let nb = topology::vertex_neighbours(subject.vertices.len(), &subject.triangles);
-                let ext = posing::extremities(&subject, &nb, 8);
-                (0..count)
-                    .map(|i| {
-                        // the subject's size kept (the same subject)
-                        let settings = PoseSettings {
-                            limbs: 8,
-                            limb_degrees: (5.0, 25.0),
-                            bend: 10.0,
-                            twist: 8.0,
-                            scale: 1.0,
-                            seed: seed + i as u64,
-                        };
-                        posing::pose(&subject, &nb, &ext, &settings)
-                    })
-                    .collect()
-            };
-            for (i, mut x) in poses.into_iter().enumerate() {
-                let heading = rng.random_range(-15.0..15.0);
-                turned(&mut x, heading);
-                grounded(&mut x);
-                let rot = nalgebra::Rotation3::from_axis_angle(&V3::z_axis(), heading.to_radians());
-                let posed = Mesh::new(x, subject.triangles.clone());
-                postures.push(scanned(
-                    &posed,
-                    &named,
-                    &marks,
-                    rot * rest_front,
-                    seed + i as u64,
-                ));
-            }
-        }
+            outside_postures(name, &named, count, seed, &mut rng)?
+        };
         out.push(Subject {
             name: name.to_string(),
             part,
@@ -203,6 +123,112 @@ pub fn subjects(part: Part, count: usize, names: &[&str]) -> Result<Vec<Subject>
         });
     }
     Ok(out)
+}
+
+/// Another individual of the template's family (other proportions, another
+/// triangulation) in `count` random postures, each turned and stood on the floor, scanned.
+fn generic_postures(
+    kind: Kind,
+    named: &BTreeMap<String, u32>,
+    count: usize,
+    seed: u64,
+    rng: &mut ChaCha8Rng,
+) -> Result<Vec<Posture>, super::SynthError> {
+    let other = template::build(kind, 8_000);
+    let shape: BTreeMap<String, f64> = match kind {
+        Kind::Pig => [
+            ("length", 1.12),
+            ("girth", 1.15),
+            ("leg_length", 0.9),
+            ("head_size", 1.1),
+        ],
+        Kind::Body => [
+            ("height", 0.95),
+            ("girth", 1.18),
+            ("arm_length", 1.05),
+            ("shoulders", 1.1),
+        ],
+    }
+    .iter()
+    .map(|(n, f)| (n.to_string(), *f))
+    .collect();
+    let marks: Vec<(String, u32)> = other.landmark_vertices().into_iter().collect();
+    let mut postures = Vec::new();
+    for (i, pose) in template::random_postures(kind, count, 20.0, seed)
+        .iter()
+        .enumerate()
+    {
+        let mut subject = template::subject(&other, kind, &shape, pose)?;
+        let heading = rng.random_range(-15.0..15.0);
+        turned(&mut subject.vertices, heading);
+        grounded(&mut subject.vertices);
+        postures.push(scanned(
+            &subject,
+            named,
+            &marks,
+            V3::new(heading.to_radians().cos(), heading.to_radians().sin(), 0.0),
+            seed + i as u64,
+        ));
+    }
+    Ok(postures)
+}
+
+/// An outside subject (`name`) posed part-way along its limbs as it moves in a crate or a
+/// booth; or (`booth ...`) standing as a booth's people stand, the arms turned at the
+/// shoulders; each turned and stood on the floor, scanned.
+fn outside_postures(
+    name: &str,
+    named: &BTreeMap<String, u32>,
+    count: usize,
+    seed: u64,
+    rng: &mut ChaCha8Rng,
+) -> Result<Vec<Posture>, super::SynthError> {
+    let booth = name.strip_prefix("booth ");
+    let mesh_name = match booth {
+        Some("man") => "human",
+        Some(person) => person,
+        None => name,
+    };
+    let subject = devset::load(mesh_name)?;
+    let marks = super::semantic::marks_of(mesh_name)?;
+    let rest_front = super::semantic::rest_front(&subject, &marks)
+        .ok_or_else(|| super::SynthError::NoFront(name.to_string()))?;
+    let poses: Vec<Vec<V3>> = if booth.is_some() {
+        posing::stand(&subject, rest_front, &posing::Stance::ALL)?
+    } else {
+        let nb = topology::vertex_neighbours(subject.vertices.len(), &subject.triangles);
+        let ext = posing::extremities(&subject, &nb, 8);
+        (0..count)
+            .map(|i| {
+                // the subject's size kept (the same subject)
+                let settings = PoseSettings {
+                    limbs: 8,
+                    limb_degrees: (5.0, 25.0),
+                    bend: 10.0,
+                    twist: 8.0,
+                    scale: 1.0,
+                    seed: seed + i as u64,
+                };
+                posing::pose(&subject, &nb, &ext, &settings)
+            })
+            .collect()
+    };
+    let mut postures = Vec::new();
+    for (i, mut x) in poses.into_iter().enumerate() {
+        let heading = rng.random_range(-15.0..15.0);
+        turned(&mut x, heading);
+        grounded(&mut x);
+        let rot = nalgebra::Rotation3::from_axis_angle(&V3::z_axis(), heading.to_radians());
+        let posed = Mesh::new(x, subject.triangles.clone());
+        postures.push(scanned(
+            &posed,
+            named,
+            &marks,
+            rot * rest_front,
+            seed + i as u64,
+        ));
+    }
+    Ok(postures)
 }
 
 fn scanned(

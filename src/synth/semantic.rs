@@ -4,6 +4,7 @@
 //! on both: the template's own named landmarks, and the same points marked on the outside
 //! mesh (`tests/data/meshes/*.marks`, how they were placed in `tests/data/README.md`).
 
+use super::SynthError;
 use super::devset::{self, DevCaseSpec, Part, large_posture, posed};
 use crate::mesh::landmarks::{self, LandmarkPos};
 use crate::mesh::{Mesh, V3};
@@ -146,21 +147,22 @@ fn is_limb_end(name: &str) -> bool {
 
 /// The semantic marks of an outside mesh: `<file stem>.marks` beside it, `name vertex`
 /// per line (the landmark text format).
-pub fn marks_of(mesh_name: &str) -> Result<Vec<(String, u32)>, String> {
+pub fn marks_of(mesh_name: &str) -> Result<Vec<(String, u32)>, SynthError> {
     let stem = match mesh_name {
         // the woman is in the man's vertex order: the same vertices are the same points
         "human" | "woman" => "human",
         other => other,
     };
     let path = devset::data_dir().join(format!("{stem}.marks"));
-    let bytes = crate::files::read_limited(&path, crate::files::MAX_TABLE_BYTES)
-        .map_err(|e| e.to_string())?;
-    landmarks::parse_text(&path.display().to_string(), &bytes)
-        .map_err(|e| e.to_string())?
+    let bytes = crate::files::read_limited(&path, crate::files::MAX_TABLE_BYTES)?;
+    landmarks::parse_text(&path.display().to_string(), &bytes)?
         .into_iter()
         .map(|l| match l.pos {
             LandmarkPos::Vertex(v) => Ok((l.name, v)),
-            LandmarkPos::Point(_) => Err(format!("{}: {} is not a vertex", path.display(), l.name)),
+            LandmarkPos::Point(_) => Err(SynthError::MarkNotVertex {
+                file: path.display().to_string(),
+                name: l.name,
+            }),
         })
         .collect()
 }
@@ -169,7 +171,7 @@ pub fn marks_of(mesh_name: &str) -> Result<Vec<(String, u32)>, String> {
 /// posture and the harder set's large one), each to its own heading: the pig onto the
 /// koala and the body onto the man (development), the pig onto the cow and the body onto
 /// the woman (validation, never tuned on).
-pub fn generic_cases(part: Part, names: &[&str]) -> Result<Vec<SemanticCase>, String> {
+pub fn generic_cases(part: Part, names: &[&str]) -> Result<Vec<SemanticCase>, SynthError> {
     generic_cases_turned(part, names, 0.0)
 }
 
@@ -180,7 +182,7 @@ pub fn generic_cases_turned(
     part: Part,
     names: &[&str],
     turn: f64,
-) -> Result<Vec<SemanticCase>, String> {
+) -> Result<Vec<SemanticCase>, SynthError> {
     let subjects: &[(&str, Kind)] = match part {
         Part::Development => &[("koala", Kind::Pig), ("human", Kind::Body)],
         Part::Validation => &[("cow", Kind::Pig), ("woman", Kind::Body)],
@@ -194,7 +196,7 @@ pub fn generic_cases_turned(
         let subject = devset::load(subject_name)?;
         let marks = marks_of(subject_name)?;
         let rest_front = rest_front(&subject, &marks)
-            .ok_or_else(|| format!("{subject_name}: no marks that say which way it faces"))?;
+            .ok_or_else(|| SynthError::NoFront(subject_name.to_string()))?;
         let seed = 40 + 10 * k as u64 + if part == Part::Validation { 100 } else { 0 };
         let postures = [
             (
@@ -258,7 +260,7 @@ fn semantic_case(
     spec: &DevCaseSpec,
     what: &str,
     part: Part,
-) -> Result<SemanticCase, String> {
+) -> Result<SemanticCase, SynthError> {
     let named = fig.landmark_vertices();
     let posed_mesh = Mesh::new(truth.clone(), subject.mesh.triangles.clone());
     let (scan, _) = devset::scan_as_spec_says(&posed_mesh, spec);
@@ -269,17 +271,21 @@ fn semantic_case(
             let vertex = named
                 .get(name)
                 .copied()
-                .ok_or_else(|| format!("the generic template has no landmark '{name}'"))?;
-            let truth = *truth.get(*v as usize).ok_or_else(|| {
-                format!("{}: mark {name} on vertex {v}, past the mesh", subject.name)
-            })?;
+                .ok_or_else(|| SynthError::TemplateLandmark(name.clone()))?;
+            let truth = *truth
+                .get(*v as usize)
+                .ok_or_else(|| SynthError::MarkPastMesh {
+                    subject: subject.name.to_string(),
+                    name: name.clone(),
+                    vertex: *v,
+                })?;
             Ok(Mark {
                 name: name.clone(),
                 vertex,
                 truth,
             })
         })
-        .collect::<Result<_, String>>()?;
+        .collect::<Result<_, SynthError>>()?;
     let front = nalgebra::Rotation3::from_axis_angle(&V3::z_axis(), spec.heading.to_radians())
         * subject.rest_front;
     Ok(SemanticCase {
@@ -306,7 +312,7 @@ fn semantic_case(
 /// belly, arms forward, arms raised; the arms turned at the shoulders, which the other
 /// cases never do), each to its own heading: the man (development) and the woman
 /// (validation).
-pub fn booth_cases(part: Part) -> Result<Vec<SemanticCase>, String> {
+pub fn booth_cases(part: Part) -> Result<Vec<SemanticCase>, SynthError> {
     let subject_name = match part {
         Part::Development => "human",
         Part::Validation => "woman",
@@ -314,8 +320,8 @@ pub fn booth_cases(part: Part) -> Result<Vec<SemanticCase>, String> {
     let fig = template::build(Kind::Body, 10_000);
     let mesh = devset::load(subject_name)?;
     let marks = marks_of(subject_name)?;
-    let rest_front = rest_front(&mesh, &marks)
-        .ok_or_else(|| format!("{subject_name}: no marks that say which way it faces"))?;
+    let rest_front =
+        rest_front(&mesh, &marks).ok_or_else(|| SynthError::NoFront(subject_name.to_string()))?;
     let subject = Subject {
         name: subject_name,
         mesh: &mesh,

@@ -90,105 +90,180 @@ impl RigPose {
     }
 }
 
+/// What breaks a rig's promises for its mesh; names the element at fault.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum RigCheckError {
+    #[error("no bones")]
+    NoBones,
+    #[error("{0} bones: at most {max}", max = u16::MAX)]
+    TooManyBones(usize),
+    #[error("bone {0}: an empty name")]
+    EmptyBoneName(usize),
+    #[error("bone {index} ('{name}'): {fault}")]
+    Bone {
+        index: usize,
+        name: String,
+        fault: BoneFault,
+    },
+    #[error("weights for {got} vertices, the mesh has {vertices}")]
+    WeightCount { got: usize, vertices: usize },
+    #[error("vertex {vertex}: {fault}")]
+    Weights { vertex: usize, fault: WeightFault },
+    #[error("shape {0}: an empty name")]
+    EmptyShapeName(usize),
+    #[error("shape {index} ('{name}'): {fault}")]
+    Shape {
+        index: usize,
+        name: String,
+        fault: ShapeFault,
+    },
+    #[error("a rig needs a mesh with triangles")]
+    NoTriangles,
+}
+
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum BoneFault {
+    #[error("the name is given twice")]
+    NameTwice,
+    #[error("its parent must be listed before it (bones are listed parents first)")]
+    ParentAfter,
+    #[error("only the first bone is the root")]
+    SecondRoot,
+    #[error("the first bone is the root")]
+    RootWithParent,
+    #[error("head and tail must be finite coordinates within 1e9")]
+    NotFinite,
+    #[error("limit_deg {0} is not 0 to {MAX_LIMIT_DEG}")]
+    Limit(f64),
+}
+
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum WeightFault {
+    #[error("no weights")]
+    None,
+    #[error("bone {bone}, but the rig has {bones} bones")]
+    Bone { bone: u32, bones: usize },
+    #[error("weight {0} is not in (0, 1]")]
+    Weight(f64),
+    #[error("weights sum to {0}, not 1")]
+    Sum(f64),
+}
+
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ShapeFault {
+    #[error("the name is given twice")]
+    NameTwice,
+    #[error("range [{0}, {1}] must be positive and hold 1")]
+    Range(f64, f64),
+    #[error("{got} vertex offsets, the mesh has {vertices}")]
+    VertexOffsets { got: usize, vertices: usize },
+    #[error("{got} head offsets, the rig has {bones} bones")]
+    HeadOffsets { got: usize, bones: usize },
+    #[error("vertex {0}'s offset is not finite")]
+    VertexNotFinite(usize),
+    #[error("bone {0}'s head offset is not finite")]
+    HeadNotFinite(usize),
+}
+
 impl TemplateRig {
     /// Checks everything a rig promises for a mesh of `vertices` vertices; the message
     /// names the element at fault.
-    pub fn check(&self, vertices: usize) -> Result<(), String> {
+    pub fn check(&self, vertices: usize) -> Result<(), RigCheckError> {
         let nb = self.bones.len();
         if nb == 0 {
-            return Err("no bones".into());
+            return Err(RigCheckError::NoBones);
         }
         if nb > u16::MAX as usize {
-            return Err(format!("{nb} bones: at most {}", u16::MAX));
+            return Err(RigCheckError::TooManyBones(nb));
         }
         let finite = |p: &V3| p.iter().all(|x| x.is_finite() && x.abs() <= 1e9);
         for (i, b) in self.bones.iter().enumerate() {
-            let at = format!("bone {} ('{}')", i, b.name);
+            let bad = |fault: BoneFault| {
+                Err(RigCheckError::Bone {
+                    index: i,
+                    name: b.name.clone(),
+                    fault,
+                })
+            };
             if b.name.trim().is_empty() {
-                return Err(format!("bone {i}: an empty name"));
+                return Err(RigCheckError::EmptyBoneName(i));
             }
             if self.bones[..i].iter().any(|o| o.name == b.name) {
-                return Err(format!("{at}: the name is given twice"));
+                return bad(BoneFault::NameTwice);
             }
             match b.parent {
-                Some(p) if p >= i => {
-                    return Err(format!(
-                        "{at}: its parent must be listed before it (bones are listed parents first)"
-                    ));
-                }
-                None if i > 0 => {
-                    return Err(format!("{at}: only the first bone is the root"));
-                }
-                Some(_) if i == 0 => return Err(format!("{at}: the first bone is the root")),
+                Some(p) if p >= i => return bad(BoneFault::ParentAfter),
+                None if i > 0 => return bad(BoneFault::SecondRoot),
+                Some(_) if i == 0 => return bad(BoneFault::RootWithParent),
                 _ => {}
             }
             if !finite(&b.head) || !finite(&b.tail) {
-                return Err(format!(
-                    "{at}: head and tail must be finite coordinates within 1e9"
-                ));
+                return bad(BoneFault::NotFinite);
             }
             if !(0.0..=MAX_LIMIT_DEG).contains(&b.limit_deg) {
-                return Err(format!(
-                    "{at}: limit_deg {} is not 0 to {MAX_LIMIT_DEG}",
-                    b.limit_deg
-                ));
+                return bad(BoneFault::Limit(b.limit_deg));
             }
         }
         if self.weights.len() != vertices {
-            return Err(format!(
-                "weights for {} vertices, the mesh has {vertices}",
-                self.weights.len()
-            ));
+            return Err(RigCheckError::WeightCount {
+                got: self.weights.len(),
+                vertices,
+            });
         }
         for (v, w) in self.weights.iter().enumerate() {
+            let bad = |fault: WeightFault| Err(RigCheckError::Weights { vertex: v, fault });
             if w.is_empty() {
-                return Err(format!("vertex {v}: no weights"));
+                return bad(WeightFault::None);
             }
             let mut sum = 0.0;
             for &(b, x) in w {
                 if b as usize >= nb {
-                    return Err(format!("vertex {v}: bone {b}, but the rig has {nb} bones"));
+                    return bad(WeightFault::Bone { bone: b, bones: nb });
                 }
                 if !(x.is_finite() && x > 0.0 && x <= 1.0 + 1e-6) {
-                    return Err(format!("vertex {v}: weight {x} is not in (0, 1]"));
+                    return bad(WeightFault::Weight(x));
                 }
                 sum += x;
             }
             if (sum - 1.0).abs() > 1e-3 {
-                return Err(format!("vertex {v}: weights sum to {sum}, not 1"));
+                return bad(WeightFault::Sum(sum));
             }
         }
         for (k, s) in self.shapes.iter().enumerate() {
-            let at = format!("shape {} ('{}')", k, s.name);
+            let bad = |fault: ShapeFault| {
+                Err(RigCheckError::Shape {
+                    index: k,
+                    name: s.name.clone(),
+                    fault,
+                })
+            };
             if s.name.trim().is_empty() {
-                return Err(format!("shape {k}: an empty name"));
+                return Err(RigCheckError::EmptyShapeName(k));
             }
             if self.shapes[..k].iter().any(|o| o.name == s.name) {
-                return Err(format!("{at}: the name is given twice"));
+                return bad(ShapeFault::NameTwice);
             }
             let (lo, hi) = s.range;
             if !(lo.is_finite() && hi.is_finite() && 0.0 < lo && lo <= 1.0 && 1.0 <= hi) {
-                return Err(format!(
-                    "{at}: range [{lo}, {hi}] must be positive and hold 1"
-                ));
+                return bad(ShapeFault::Range(lo, hi));
             }
             if s.vertices.len() != vertices {
-                return Err(format!(
-                    "{at}: {} vertex offsets, the mesh has {vertices}",
-                    s.vertices.len()
-                ));
+                return bad(ShapeFault::VertexOffsets {
+                    got: s.vertices.len(),
+                    vertices,
+                });
             }
             if s.heads.len() != nb {
-                return Err(format!(
-                    "{at}: {} head offsets, the rig has {nb} bones",
-                    s.heads.len()
-                ));
+                return bad(ShapeFault::HeadOffsets {
+                    got: s.heads.len(),
+                    bones: nb,
+                });
             }
             if let Some(i) = s.vertices.iter().position(|p| !finite(p)) {
-                return Err(format!("{at}: vertex {i}'s offset is not finite"));
+                return bad(ShapeFault::VertexNotFinite(i));
             }
             if let Some(i) = s.heads.iter().position(|p| !finite(p)) {
-                return Err(format!("{at}: bone {i}'s head offset is not finite"));
+                return bad(ShapeFault::HeadNotFinite(i));
             }
         }
         Ok(())
@@ -452,10 +527,10 @@ impl TemplateRig {
     /// upper bone from where it meets the body and a lower bone from half-way to its tip,
     /// parented to the bone that holds its root; weights falling off along the surface;
     /// a length field per limb. A mesh without limbs (a sphere) gets the root alone.
-    pub fn automatic(mesh: &Mesh, s: &AutoRigSettings) -> Result<TemplateRig, String> {
+    pub fn automatic(mesh: &Mesh, s: &AutoRigSettings) -> Result<TemplateRig, RigCheckError> {
         let v = &mesh.vertices;
         if v.is_empty() || mesh.triangles.is_empty() {
-            return Err("a rig needs a mesh with triangles".into());
+            return Err(RigCheckError::NoTriangles);
         }
         let nb = topology::vertex_neighbours(v.len(), &mesh.triangles);
         let c = v.iter().sum::<V3>() / v.len() as f64;
@@ -960,7 +1035,7 @@ impl TemplateRig {
                 .collect(),
         };
         rig.check(vertices)
-            .map_err(|msg| FileError::content(name, msg))?;
+            .map_err(|e| FileError::content(name, e.to_string()))?;
         for w in &mut rig.weights {
             let sum: f64 = w.iter().map(|x| x.1).sum();
             for x in w.iter_mut() {

@@ -18,7 +18,7 @@ pub fn run(a: ConformArgs) -> Result<(), commands::CommandError> {
         out,
         report,
     } = a;
-    let opts = commands::conform_options(config.as_deref(), method)?;
+    let opts = commands::conform_options(config.as_deref(), method.map(Into::into))?;
     let mut template = match (template, &config) {
         (Some(t), _) => {
             TemplateSource::named(&t, template_groups).map_err(commands::CommandError::from)?
