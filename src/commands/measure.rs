@@ -39,7 +39,7 @@ pub struct MeasureReport {
     pub normalised: Option<Vec<Measurement>>,
 }
 
-/// How well each measurement repeats over several meshes of one subject (issue 22):
+/// How well each measurement repeats over several meshes of one subject:
 /// mean, SD and CV raw, and posture-free when the meshes were measured so too.
 #[derive(Debug, Clone, serde::Serialize)]
 pub struct Repeatability {

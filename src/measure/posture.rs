@@ -1,4 +1,4 @@
-//! Posture-free measurement by the subject's own parts (issue 22): the conformed mesh is
+//! Posture-free measurement by the subject's own parts: the conformed mesh is
 //! not deformed back to a rest posture. Instead each bone of the generic template's
 //! skeleton gets a robust similarity fit (rest -> result) over the vertices it carries,
 //! and each measurement's definition is moved into the subject's posture: a girth's

@@ -749,7 +749,7 @@ pub fn large_posture(seed: u64, heading: f64) -> DevCaseSpec {
     }
 }
 
-/// The harder set of issue 29: large postures (limbs swung 45-90 degrees, the whole bent
+/// The harder set: large postures (limbs swung 45-90 degrees, the whole bent
 /// and twisted, a new heading), one person's mesh onto another person's, dense uneven
 /// triangulations (50k+ vertices, edge CV near 1 and over), holes; each case with 12
 /// landmarks and without (the up axis given, as a station's config does).

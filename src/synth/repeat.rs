@@ -1,4 +1,4 @@
-//! Repeatability cases (issue 22): one subject scanned in many postures, the generic
+//! Repeatability cases: one subject scanned in many postures, the generic
 //! template conformed onto every scan. What the station promises is that the subject's
 //! measurements do not depend on how it stood; these cases show whether they do. The
 //! subjects: a generic template of another shape and triangulation (the template's own
