@@ -66,7 +66,7 @@ LINTED := RUSTC_WORKSPACE_WRAPPER=$(CLIPPY_DRIVER) CLIPPY_ARGS=-D__CLIPPY_HACKER
 # configuration, e.g. `[worker] program`).
 lint: deps
 	@[ -n "$(CLIPPY_DRIVER)" ] || { echo "clippy is not installed: rustup component add clippy"; exit 1; }
-	$(CARGO) fmt --check
+	$(CARGO) fmt --all --check
 	$(LINTED) $(CARGO) build --locked --profile ci --all-targets
 
 # Lint, then every test, compiled once: the `ci` profile optimises (the known-answer

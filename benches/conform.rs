@@ -8,8 +8,8 @@
 
 use conformd::conform::{ConformOptions, Conformed, GlobalReport, conform, conform_rigged};
 use conformd::synth::cases::{self, ArticulatedSpec, Case};
-use conformd::synth::devset;
 use conformd::template::rig::TemplateRig;
+use conformd_devset::devset;
 use std::time::Instant;
 
 /// The options conformed with: the defaults, or `--options FILE` (a `[conform]`-style

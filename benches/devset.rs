@@ -1,4 +1,4 @@
-//! Conformation on the development set of outside meshes (`synth::devset`): per case the
+//! Conformation on the development set of outside meshes (`conformd_devset::devset`): per case the
 //! correspondence error (mean, in holes, 95th percentile), triangles flipped against the
 //! truth, the edge-length variation and the time. Run: `cargo bench --bench devset`;
 //! `-- --options FILE` conforms with a `[conform]`-style TOML of options, `-- --only
@@ -14,7 +14,7 @@ use conformd::mesh::io::write_mesh;
 use conformd::mesh::{Mesh, quality};
 use conformd::render::{self, Colouring, RenderOptions};
 use conformd::synth::cases::correspondence_error;
-use conformd::synth::devset;
+use conformd_devset::devset;
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -211,7 +211,7 @@ fn part_label(p: devset::Part) -> &'static str {
 }
 
 /// Each semantic landmark's error and the limb ends on another limb.
-fn print_marks(s: &conformd::synth::semantic::SemanticScore) {
+fn print_marks(s: &conformd_devset::semantic::SemanticScore) {
     let per: Vec<String> = s
         .per_mark
         .iter()
@@ -227,7 +227,7 @@ fn print_marks(s: &conformd::synth::semantic::SemanticScore) {
 /// scored by the semantic landmarks marked on both; `booth`: the generic body onto
 /// people in a booth's stances (`semantic::booth_cases`) instead.
 fn generic(opts: &ConformOptions, only: &[&str], pictures: Option<&std::path::Path>, booth: bool) {
-    use conformd::synth::semantic;
+    use conformd_devset::semantic;
     println!(
         "{:<44} {:>6} | {:>6} {:>6} {:>6} | {:>5} {:>6} | {:>6}",
         "generic template onto", "points", "mean%", "max%", "wrong", "fold", "var", "s"

@@ -1,4 +1,4 @@
-//! Repeatability of measurements over postures (issue 22, `synth::repeat`): each subject
+//! Repeatability of measurements over postures (issue 22, `conformd_devset::repeat`): each subject
 //! scanned in several postures, the generic template (with its rig, as a station fits
 //! it) conformed onto every scan with its landmarks and without (the up axis known, as
 //! a station's config says), then measured raw and posture-free. Per subject and
@@ -11,10 +11,10 @@
 use conformd::conform::{ConformOptions, conform_rigged};
 use conformd::measure::{self, Definitions, Measurement, PostureRemoval};
 use conformd::mesh::V3;
-use conformd::synth::devset::Part;
-use conformd::synth::repeat;
 use conformd::template::Kind;
 use conformd::template::rig::TemplateRig;
+use conformd_devset::devset::Part;
+use conformd_devset::repeat;
 use std::time::Instant;
 
 fn main() {

@@ -1,4 +1,4 @@
-//! The development set of outside meshes (`tests/data`, `synth::devset`): each mesh posed
+//! The development set of outside meshes (`tests/data`, `conformd_devset::devset`): each mesh posed
 //! with a known answer, scanned from four sides and above, conformed with and without
 //! landmarks by the default options; correspondence error against the truth.
 //!
@@ -8,7 +8,7 @@ use conformd::conform::{ConformOptions, GlobalReport, conform};
 use conformd::mesh::quality;
 use conformd::mesh::topology;
 use conformd::synth::cases::correspondence_error;
-use conformd::synth::devset;
+use conformd_devset::devset;
 
 #[test]
 fn the_development_meshes_are_what_the_set_needs() {
@@ -31,9 +31,9 @@ fn the_development_meshes_are_what_the_set_needs() {
 fn booth_stances_put_the_hands_where_they_say() {
     // the man (z up, facing -y at rest), posed through his automatic rig: hand tips
     // against his head top and his nose; the legs keep him standing (heels at the floor)
-    use conformd::synth::posing::{Stance, stand};
+    use conformd_devset::posing::{Stance, stand};
     let man = devset::load("human").unwrap();
-    let marks = conformd::synth::semantic::marks_of("human").unwrap();
+    let marks = conformd_devset::semantic::marks_of("human").unwrap();
     let at = |x: &[conformd::mesh::V3], name: &str| {
         x[marks.iter().find(|m| m.0 == name).unwrap().1 as usize]
     };
@@ -382,7 +382,7 @@ fn no_landmarks_finds_head_and_tail_whichever_way_the_subject_faces() {
     // the koala turned round (head where the tail was) and tipped: a rigid residual
     // alone can prefer the template the wrong way round on a near-symmetric body; the
     // elastic fit of every close hypothesis decides
-    use conformd::synth::devset::DevCaseSpec;
+    use conformd_devset::devset::DevCaseSpec;
     let koala = devset::load("koala").unwrap();
     for turn in [90.0, 180.0] {
         let spec = DevCaseSpec {
@@ -406,7 +406,7 @@ fn a_near_symmetric_subject_gets_both_alignments_fitted() {
     // barely differ, so both placements are fitted: by its automatic rig (the snout a
     // limb), the better by distances both ways going on; without a rig, both through
     // the elastic fit
-    use conformd::synth::devset::DevCaseSpec;
+    use conformd_devset::devset::DevCaseSpec;
     let mut m = conformd::synth::icosphere(4);
     for v in &mut m.vertices {
         let snout = (-((v.x - 1.0).powi(2) + v.y.powi(2) + v.z.powi(2)) / 0.05).exp();
@@ -578,7 +578,7 @@ fn the_decimated_level_loses_nothing_against_full_resolution() {
 fn the_limb_search_turns_swung_limbs_toward_the_scan() {
     use conformd::conform::correspond::ScanSurface;
     use conformd::conform::limbs;
-    use conformd::synth::posing::PoseSettings;
+    use conformd_devset::posing::PoseSettings;
     // the man with his limbs swung 45-90 degrees, in place (no heading, turn or shift),
     // so the template's own placement is the rigid start
     let man = devset::load("human").unwrap();
@@ -663,7 +663,7 @@ fn generic_templates_onto_outside_subjects_hold_per_case() {
     // the station's real case: conformd's pig or body (another shape, another
     // triangulation) onto an outside animal or person, the up axis known, no landmarks;
     // scored by semantic landmarks marked on both
-    use conformd::synth::semantic;
+    use conformd_devset::semantic;
     let opts = ConformOptions::default();
     let mut failures = Vec::new();
     let mut seen = 0;
@@ -706,7 +706,7 @@ fn generic_templates_onto_outside_subjects_hold_per_case() {
 #[should_panic(expected = "on another limb")]
 fn known_failure_the_man_posed_has_no_limb_end_on_another_limb() {
     let name = KNOWN_ON_ANOTHER_LIMB[0].0;
-    let c = conformd::synth::semantic::generic_cases(devset::Part::Development, &["human"])
+    let c = conformd_devset::semantic::generic_cases(devset::Part::Development, &["human"])
         .unwrap()
         .into_iter()
         .find(|c| c.name == name)
@@ -743,11 +743,11 @@ fn booth_fits(
     part: devset::Part,
     want: fn(&str) -> bool,
 ) -> Vec<(
-    conformd::synth::semantic::SemanticCase,
-    conformd::synth::semantic::SemanticScore,
+    conformd_devset::semantic::SemanticCase,
+    conformd_devset::semantic::SemanticScore,
 )> {
     let opts = ConformOptions::default();
-    conformd::synth::semantic::booth_cases(part)
+    conformd_devset::semantic::booth_cases(part)
         .unwrap()
         .into_iter()
         .filter(|c| want(&c.name))
@@ -817,7 +817,7 @@ fn known_failure_hands_at_the_belly_are_fitted_at_the_belly() {
 /// A generic case fitted: how far the result faces the way the subject faces (cosine,
 /// from the template's heel marks to its toe marks, level), its semantic mean, the fit.
 fn fitted_facing(
-    c: &conformd::synth::semantic::SemanticCase,
+    c: &conformd_devset::semantic::SemanticCase,
     o: &ConformOptions,
 ) -> (f64, f64, conformd::conform::Conformed) {
     let r = c.conform(o).unwrap();
@@ -849,8 +849,8 @@ fn large_generic_case(
     part: devset::Part,
     subject: &str,
     turn: f64,
-) -> conformd::synth::semantic::SemanticCase {
-    conformd::synth::semantic::generic_cases_turned(part, &[subject], turn)
+) -> conformd_devset::semantic::SemanticCase {
+    conformd_devset::semantic::generic_cases_turned(part, &[subject], turn)
         .unwrap()
         .into_iter()
         .find(|c| c.name.contains("large posture"))
@@ -910,7 +910,7 @@ fn a_station_that_knows_the_front_fits_the_person_facing_it() {
 fn semantic_scoring_sees_a_swapped_limb() {
     // the score itself: the truth scores 0; a result with the two front hooves' template
     // vertices moved onto each other's true places is flagged, not averaged away
-    use conformd::synth::semantic;
+    use conformd_devset::semantic;
     let c = semantic::generic_cases(devset::Part::Development, &["koala"])
         .unwrap()
         .remove(0);
@@ -945,7 +945,7 @@ fn the_automatic_rig_finds_the_limbs_of_outside_meshes() {
     ] {
         let mesh = devset::load(name).unwrap();
         let rig = TemplateRig::automatic(&mesh, &AutoRigSettings::default()).unwrap();
-        let marks = conformd::synth::semantic::marks_of(name).unwrap();
+        let marks = conformd_devset::semantic::marks_of(name).unwrap();
         let owner = rig.dominant_bones();
         let mut limbs_of_ends = Vec::new();
         for end in &limb_ends {
@@ -985,4 +985,28 @@ fn the_automatic_rig_finds_the_limbs_of_outside_meshes() {
         assert!(moved * 10 > mesh.vertices.len(), "{name}: {moved} moved");
         assert_eq!(folded, 0, "{name}");
     }
+}
+
+#[test]
+fn posing_a_box_keeps_its_triangles_unfolded_and_moves() {
+    use conformd::mesh::{V3, topology};
+    use conformd_devset::posing::{PoseSettings, extremities, pose};
+    let m = conformd::synth::tessellated_box(V3::new(4.0, 1.0, 1.0), 8);
+    let nb = topology::vertex_neighbours(m.vertices.len(), &m.triangles);
+    let ext = extremities(&m, &nb, 4);
+    assert_eq!(ext.samples.len(), 4);
+    // the first extremity is a far end of the long box
+    let tip = m.vertices[ext.samples[0].0 as usize];
+    assert!(tip.x.abs() > 1.5, "{tip:?}");
+    let posed = pose(&m, &nb, &ext, &PoseSettings::default());
+    let moved = posed
+        .iter()
+        .zip(&m.vertices)
+        .filter(|(a, b)| (*a - *b).norm() > 1e-3)
+        .count();
+    assert!(moved > m.vertices.len() / 2);
+    assert_eq!(
+        conformd::mesh::quality::flipped_against(&posed, &m.vertices, &m.triangles),
+        0
+    );
 }

@@ -837,8 +837,8 @@ fn with_landmarks_the_booth_mans_girths_repeat_over_his_stances() {
     // 0.40 m and 0.51 m in the other stances); the rig fitted with the marks held keeps
     // every girth within 2% (3% asserted).
     use conformd::conform::conform_rigged;
-    use conformd::synth::{devset::Part, repeat};
     use conformd::template::rig::TemplateRig;
+    use conformd_devset::{devset::Part, repeat};
     let subjects = repeat::subjects(Part::Development, 3, &["booth man"]).unwrap();
     let s = &subjects[0];
     let defs = Definitions::parse(conformd::measure::BODY, "generic").unwrap();

@@ -157,7 +157,7 @@ pub struct ConformOptions {
 }
 
 impl Default for ConformOptions {
-    /// Defaults chosen on the development set of outside meshes (`synth::devset`, README
+    /// Defaults chosen on the development set of outside meshes (`conformd_devset::devset`, README
     /// table), checked on the articulated and box cases of `tests/`.
     fn default() -> Self {
         ConformOptions {

@@ -4,63 +4,13 @@
 //! viewpoints (occluded triangles removed) and resamples it as a noisy point cloud.
 
 pub mod cases;
-pub mod devset;
-pub mod posing;
-pub mod repeat;
 pub mod scanner;
-pub mod semantic;
 pub mod trigger_box;
 pub mod v4l2_driver;
 pub mod virtual_rig;
 
 use crate::mesh::{Mesh, V3};
 use std::collections::HashMap;
-
-/// Why a development case or subject could not be made.
-#[derive(Debug, thiserror::Error)]
-pub enum SynthError {
-    #[error(transparent)]
-    File(#[from] crate::files::FileError),
-    #[error("{path}: {source}")]
-    Io {
-        path: String,
-        source: std::io::Error,
-    },
-    #[error("no development mesh '{0}'")]
-    NoMesh(String),
-    #[error("{file}: {name} is not a vertex")]
-    MarkNotVertex { file: String, name: String },
-    #[error("{file} has no {name}")]
-    NoMark { file: String, name: String },
-    #[error("{subject}: mark {name} on vertex {vertex}, past the mesh")]
-    MarkPastMesh {
-        subject: String,
-        name: String,
-        vertex: u32,
-    },
-    #[error("{0}: no marks that say which way it faces")]
-    NoFront(String),
-    #[error("the generic template has no landmark '{0}'")]
-    TemplateLandmark(String),
-    #[error("the case has no truth")]
-    NoTruth,
-    #[error(transparent)]
-    Template(#[from] crate::template::TemplateError),
-    #[error(transparent)]
-    Rig(#[from] crate::template::rig::RigCheckError),
-    #[error(transparent)]
-    StereoRig(#[from] crate::stereo::rig::RigError),
-    #[error(transparent)]
-    Reconstruct(#[from] crate::stereo::reconstruct::ReconstructError),
-    #[error(transparent)]
-    Scan(#[from] crate::conform::correspond::ScanError),
-    #[error("the posed subject's triangles: {0}")]
-    Triangles(String),
-    #[error("posing: {0}")]
-    Posing(&'static str),
-    #[error("the automatic rig found {arms} arms and {legs} legs, not two of each")]
-    Limbs { arms: usize, legs: usize },
-}
 
 /// A unit icosphere: the icosahedron subdivided `level` times, projected to the sphere.
 /// Vertices: 10 * 4^level + 2.

@@ -4,7 +4,7 @@
 //! cross-section part-way along it, with a weight that falls off along the surface; then
 //! the whole is bent and twisted about its long axis and scaled.
 
-use crate::mesh::{Mesh, V3};
+use conformd::mesh::{Mesh, V3};
 use nalgebra::{Rotation3, Unit};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -12,7 +12,7 @@ use rand_chacha::ChaCha8Rng;
 /// Geodesic distances along the mesh's edges from `source` (Dijkstra); vertices of other
 /// components stay at infinity.
 pub fn edge_distances(mesh: &Mesh, neighbours: &[Vec<u32>], source: u32) -> Vec<f64> {
-    crate::mesh::topology::edge_distances(&mesh.vertices, neighbours, &[source]).0
+    conformd::mesh::topology::edge_distances(&mesh.vertices, neighbours, &[source]).0
 }
 
 /// The body's centre vertex and its extremities: farthest-point samples over geodesic
@@ -217,13 +217,13 @@ pub fn stand(
     mesh: &Mesh,
     front: V3,
     stances: &[Stance],
-) -> Result<Vec<Vec<V3>>, super::SynthError> {
-    use crate::template::rig::{AutoRigSettings, TemplateRig};
+) -> Result<Vec<Vec<V3>>, crate::SynthError> {
+    use conformd::template::rig::{AutoRigSettings, TemplateRig};
     let rig = TemplateRig::automatic(mesh, &AutoRigSettings::default())?;
     let up = V3::z();
     let front = V3::new(front.x, front.y, 0.0)
         .try_normalize(1e-12)
-        .ok_or(super::SynthError::Posing("the front is vertical"))?;
+        .ok_or(crate::SynthError::Posing("the front is vertical"))?;
     let left = up.cross(&front);
     stances
         .iter()
@@ -237,14 +237,14 @@ pub fn stand(
 /// The turns of `rig`'s arm and leg bones for `stance`, in the frame `up`, `front`,
 /// `left`.
 fn stance_pose(
-    rig: &crate::template::rig::TemplateRig,
+    rig: &conformd::template::rig::TemplateRig,
     up: V3,
     front: V3,
     left: V3,
     stance: Stance,
-) -> Result<crate::template::rig::RigPose, super::SynthError> {
+) -> Result<conformd::template::rig::RigPose, crate::SynthError> {
     let dir = |b: usize| (rig.bones[b].tail - rig.bones[b].head).normalize();
-    let mut pose = crate::template::rig::RigPose::rest(rig);
+    let mut pose = conformd::template::rig::RigPose::rest(rig);
     let (mut arms, mut legs) = (0, 0);
     for (upper, bone) in rig.bones.iter().enumerate() {
         let is_root_limb = bone.name.ends_with("_upper") && bone.parent == Some(0);
@@ -281,12 +281,12 @@ fn stance_pose(
         let world = |[u, s, f]: [f64; 3]| (up * u + side * s + front * f).normalize();
         let (to_upper, to_lower) = stance.arm_directions();
         rig.point_limb(&mut pose, (upper, lower), world(to_upper), world(to_lower))
-            .ok_or(super::SynthError::Posing(
+            .ok_or(crate::SynthError::Posing(
                 "a limb bone turned exactly round",
             ))?;
     }
     if arms != 2 || legs != 2 {
-        return Err(super::SynthError::Limbs { arms, legs });
+        return Err(crate::SynthError::Limbs { arms, legs });
     }
     Ok(pose)
 }
@@ -307,33 +307,5 @@ fn random_unit(rng: &mut ChaCha8Rng) -> V3 {
         if n > 0.1 && n <= 1.0 {
             return v / n;
         }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::mesh::topology;
-
-    #[test]
-    fn a_box_keeps_its_triangles_unfolded_and_moves() {
-        let m = crate::synth::tessellated_box(V3::new(4.0, 1.0, 1.0), 8);
-        let nb = topology::vertex_neighbours(m.vertices.len(), &m.triangles);
-        let ext = extremities(&m, &nb, 4);
-        assert_eq!(ext.samples.len(), 4);
-        // the first extremity is a far end of the long box
-        let tip = m.vertices[ext.samples[0].0 as usize];
-        assert!(tip.x.abs() > 1.5, "{tip:?}");
-        let posed = pose(&m, &nb, &ext, &PoseSettings::default());
-        let moved = posed
-            .iter()
-            .zip(&m.vertices)
-            .filter(|(a, b)| (*a - *b).norm() > 1e-3)
-            .count();
-        assert!(moved > m.vertices.len() / 2);
-        assert_eq!(
-            crate::mesh::quality::flipped_against(&posed, &m.vertices, &m.triangles),
-            0
-        );
     }
 }

@@ -3,11 +3,11 @@
 //! open boundaries) and their known-answer cases: posed by `posing`, scanned by the
 //! virtual scanner from four sides and above, with noisy landmarks at extremities.
 
-use super::SynthError;
-use super::cases::{Case, scan_subject};
-use super::posing::{self, Extremities, PoseSettings};
-use crate::mesh::landmarks::{Landmark, LandmarkPos};
-use crate::mesh::{Mesh, V3, io, keep_triangles, topology};
+use crate::SynthError;
+use crate::posing::{self, Extremities, PoseSettings};
+use conformd::mesh::landmarks::{Landmark, LandmarkPos};
+use conformd::mesh::{Mesh, V3, io, keep_triangles, topology};
+use conformd::synth::cases::{Case, scan_subject};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
@@ -69,7 +69,7 @@ pub const MESHES: &[DevMesh] = &[
 pub const VALIDATION_MESHES: &[&str] = &["woman", "neutral", "cow", "koala-dense"];
 
 pub fn data_dir() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/meshes")
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../tests/data/meshes")
 }
 
 /// Loads a mesh of the set turned z-up (the virtual station's cameras look across z).
@@ -284,7 +284,7 @@ pub fn case_onto(template: &Mesh, subject: &Mesh, spec: &DevCaseSpec) -> Case {
 
 /// The posed subject seen as the set sees every case: four cameras around and one
 /// above, `spec`'s points and noise; the scan and which vertices it missed.
-pub(crate) fn scan_as_spec_says(posed: &Mesh, spec: &DevCaseSpec) -> (Mesh, Vec<bool>) {
+pub fn scan_as_spec_says(posed: &Mesh, spec: &DevCaseSpec) -> (Mesh, Vec<bool>) {
     scan_subject(
         posed,
         &[0.0, 90.0, 180.0, 270.0],
@@ -297,7 +297,7 @@ pub(crate) fn scan_as_spec_says(posed: &Mesh, spec: &DevCaseSpec) -> (Mesh, Vec<
 /// The subject posed as `spec` says (its limbs turned, bent, twisted, scaled), then
 /// turned to its heading and by `turn` about a random axis, and shifted by `shift` of
 /// `diag`: each vertex's true place, and the extremities the posing found.
-pub(crate) fn posed(
+pub fn posed(
     subject: &Mesh,
     spec: &DevCaseSpec,
     diag: f64,
@@ -375,8 +375,8 @@ fn landmark_pairs(
 /// Writes a case for the peer script (`benches/peer/trimesh_sumner.py`): template,
 /// scan, truth, per-vertex hole flags and, when used, both landmark files.
 pub fn export(case: &Case, landmarks: bool, dir: &std::path::Path) -> Result<(), SynthError> {
-    use crate::mesh::io::write_mesh;
-    use crate::mesh::landmarks::landmarks_text;
+    use conformd::mesh::io::write_mesh;
+    use conformd::mesh::landmarks::landmarks_text;
     let write = |name: &str, text: String| {
         let path = dir.join(name);
         std::fs::write(&path, text).map_err(|source| SynthError::Io {
@@ -428,7 +428,10 @@ pub enum Part {
 
 impl DevCase {
     /// The conformation options for this case: `base` with the up hint when it has one.
-    pub fn options(&self, base: &crate::conform::ConformOptions) -> crate::conform::ConformOptions {
+    pub fn options(
+        &self,
+        base: &conformd::conform::ConformOptions,
+    ) -> conformd::conform::ConformOptions {
         let mut o = base.clone();
         if let Some(u) = self.scan_up {
             o.align.template_up = Some([0.0, 0.0, 1.0]);
@@ -507,11 +510,11 @@ pub fn standard_cases(names: &[&str]) -> Result<Vec<DevCase>, SynthError> {
 /// to the second posture (same triangle, same barycentric coordinates). Landmarks are
 /// 12 template vertices spread by farthest-point sampling.
 pub fn captured_template_case(
-    station: &mut crate::stereo::rig::Reconstruction,
-    rig: &crate::stereo::rig::RigFile,
+    station: &mut conformd::stereo::rig::Reconstruction,
+    rig: &conformd::stereo::rig::RigFile,
     seed: u64,
 ) -> Result<Case, SynthError> {
-    use crate::template::{self, Kind};
+    use conformd::template::{self, Kind};
     use parry3d_f64::math::Vector as PVec;
     use parry3d_f64::query::PointQueryWithLocation;
     use parry3d_f64::shape::TriMesh;
@@ -532,7 +535,7 @@ pub fn captured_template_case(
     let a = posed("nod=8,leg_fl=12,tail=-10")?;
     let b = posed("swing=14,nod=-12,twist=6,leg_hl=-18,leg_fr=15,tail=25")?;
     let mut capture = |subject: &Mesh, as_mesh: bool, seed: u64| -> Result<Mesh, SynthError> {
-        let rendered = super::virtual_rig::render_rig(rig, subject, 2.0, seed);
+        let rendered = conformd::synth::virtual_rig::render_rig(rig, subject, 2.0, seed);
         let pairs: Vec<(Vec<u8>, Vec<u8>)> = rendered
             .chunks(2)
             .map(|p| (p[0].pixels.clone(), p[1].pixels.clone()))
@@ -561,7 +564,7 @@ pub fn captured_template_case(
         })
         .collect();
     // a vertex is in a hole where the second capture saw nothing near its true place
-    let surface = crate::conform::correspond::ScanSurface::new(&scan)?;
+    let surface = conformd::conform::correspond::ScanSurface::new(&scan)?;
     let gap = 5.0 * surface.spacing;
     let in_hole: Vec<bool> = truth
         .iter()
@@ -607,9 +610,9 @@ pub fn farthest_points(p: &[V3], count: usize) -> Vec<u32> {
 
 /// The captured-scan-as-template cases (with landmarks and without), on the example rig.
 pub fn captured_cases() -> Result<Vec<DevCase>, SynthError> {
-    let rig_path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/rig.example.toml");
-    let rig = crate::stereo::rig::RigFile::load(&rig_path)?;
-    let mut station = crate::stereo::rig::Reconstruction::load(&rig_path, None)?;
+    let rig_path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../config/rig.example.toml");
+    let rig = conformd::stereo::rig::RigFile::load(&rig_path)?;
+    let mut station = conformd::stereo::rig::Reconstruction::load(&rig_path, None)?;
     let case = captured_template_case(&mut station, &rig, 21)?;
     let again = Case {
         template: case.template.clone(),
@@ -713,7 +716,7 @@ pub fn with_eyes(mesh: &Mesh, nose_tip: usize, head_top: usize) -> Mesh {
     };
     let side = up.cross(&ahead);
     let normals = mesh.vertex_normals();
-    let ball = super::icosphere(4);
+    let ball = conformd::synth::icosphere(4);
     let radius = 0.0125;
     let mut out = mesh.clone();
     for sign in [-1.0, 1.0] {
@@ -788,7 +791,7 @@ pub fn hard_cases(part: Part, names: &[&str]) -> Result<Vec<DevCase>, SynthError
             }
             if want("human-eyes") {
                 // with eyeballs, as the validation part's body model has them
-                let marks = super::semantic::marks_of("human")?;
+                let marks = crate::semantic::marks_of("human")?;
                 let mark = |name: &str| {
                     marks
                         .iter()

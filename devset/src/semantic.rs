@@ -4,11 +4,11 @@
 //! on both: the template's own named landmarks, and the same points marked on the outside
 //! mesh (`tests/data/meshes/*.marks`, how they were placed in `tests/data/README.md`).
 
-use super::SynthError;
-use super::devset::{self, DevCaseSpec, Part, large_posture, posed};
-use crate::mesh::landmarks::{self, LandmarkPos};
-use crate::mesh::{Mesh, V3};
-use crate::template::{self, Kind};
+use crate::SynthError;
+use crate::devset::{self, DevCaseSpec, Part, large_posture, posed};
+use conformd::mesh::landmarks::{self, LandmarkPos};
+use conformd::mesh::{Mesh, V3};
+use conformd::template::{self, Kind};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
@@ -24,7 +24,7 @@ pub struct SemanticCase {
     pub name: String,
     /// which generic template, and its rig
     pub kind: Kind,
-    pub rig: crate::template::rig::TemplateRig,
+    pub rig: conformd::template::rig::TemplateRig,
     pub template: Mesh,
     pub scan: Mesh,
     pub marks: Vec<Mark>,
@@ -47,7 +47,10 @@ pub struct SemanticScore {
 
 impl SemanticCase {
     /// The conformation options of a station: `base` with the up axis known.
-    pub fn options(&self, base: &crate::conform::ConformOptions) -> crate::conform::ConformOptions {
+    pub fn options(
+        &self,
+        base: &conformd::conform::ConformOptions,
+    ) -> conformd::conform::ConformOptions {
         let mut o = base.clone();
         o.align.template_up = Some([0.0, 0.0, 1.0]);
         o.align.scan_up = Some([0.0, 0.0, 1.0]);
@@ -58,8 +61,8 @@ impl SemanticCase {
     /// `scan_front`; the generic templates face +x), to within the default 90 degrees.
     pub fn options_with_front(
         &self,
-        base: &crate::conform::ConformOptions,
-    ) -> crate::conform::ConformOptions {
+        base: &conformd::conform::ConformOptions,
+    ) -> conformd::conform::ConformOptions {
         let mut o = self.options(base);
         o.align.template_front = Some([1.0, 0.0, 0.0]);
         o.align.scan_front = Some([self.front.x, self.front.y, self.front.z]);
@@ -70,10 +73,10 @@ impl SemanticCase {
     /// (`conform_rigged`).
     pub fn conform(
         &self,
-        opts: &crate::conform::ConformOptions,
-    ) -> Result<crate::conform::Conformed, crate::conform::ConformError> {
+        opts: &conformd::conform::ConformOptions,
+    ) -> Result<conformd::conform::Conformed, conformd::conform::ConformError> {
         let never = std::sync::atomic::AtomicBool::new(false);
-        crate::conform::conform_rigged(
+        conformd::conform::conform_rigged(
             &self.template,
             Some(&self.rig),
             &self.scan,
@@ -117,7 +120,7 @@ impl SemanticCase {
 
 /// The way a subject faces in its rest pose, level (z up): from its heels to its toes
 /// (a person's head may lean back), else from its centre to its snout.
-pub(crate) fn rest_front(subject: &Mesh, marks: &[(String, u32)]) -> Option<V3> {
+pub fn rest_front(subject: &Mesh, marks: &[(String, u32)]) -> Option<V3> {
     let at = |prefix: &str| -> Option<V3> {
         let p: Vec<V3> = marks
             .iter()
@@ -154,7 +157,7 @@ pub fn marks_of(mesh_name: &str) -> Result<Vec<(String, u32)>, SynthError> {
         other => other,
     };
     let path = devset::data_dir().join(format!("{stem}.marks"));
-    let bytes = crate::files::read_limited(&path, crate::files::MAX_TABLE_BYTES)?;
+    let bytes = conformd::files::read_limited(&path, conformd::files::MAX_TABLE_BYTES)?;
     landmarks::parse_text(&path.display().to_string(), &bytes)?
         .into_iter()
         .map(|l| match l.pos {
@@ -204,7 +207,7 @@ pub fn generic_cases_turned(
                 DevCaseSpec {
                     heading: 35.0,
                     seed: seed + 1,
-                    pose: super::posing::PoseSettings {
+                    pose: crate::posing::PoseSettings {
                         seed,
                         ..Default::default()
                     },
@@ -290,7 +293,7 @@ fn semantic_case(
         * subject.rest_front;
     Ok(SemanticCase {
         kind,
-        rig: crate::template::rig::TemplateRig::generic(fig, kind),
+        rig: conformd::template::rig::TemplateRig::generic(fig, kind),
         name: format!(
             "generic {} onto {}, {what}",
             match kind {
@@ -330,8 +333,8 @@ pub fn booth_cases(part: Part) -> Result<Vec<SemanticCase>, SynthError> {
     };
     let base = if part == Part::Validation { 300 } else { 200 };
     let mut out = Vec::new();
-    let stances = super::posing::Stance::ALL;
-    let posed = super::posing::stand(&mesh, rest_front, &stances)?;
+    let stances = crate::posing::Stance::ALL;
+    let posed = crate::posing::stand(&mesh, rest_front, &stances)?;
     for (k, ((stance, heading), mut truth)) in stances
         .into_iter()
         .zip([25.0, -110.0, 160.0])

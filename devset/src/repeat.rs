@@ -5,11 +5,11 @@
 //! family), and outside animals and people (`tests/data/meshes`) posed by `posing`, each
 //! scanned from four sides and above (occlusion holes, noise).
 
-use super::devset::{self, Part};
-use super::posing::{self, PoseSettings};
-use crate::mesh::landmarks::{Landmark, LandmarkPos};
-use crate::mesh::{Mesh, V3, topology};
-use crate::template::{self, Kind, figure::Figure};
+use crate::devset::{self, Part};
+use crate::posing::{self, PoseSettings};
+use conformd::mesh::landmarks::{Landmark, LandmarkPos};
+use conformd::mesh::{Mesh, V3, topology};
+use conformd::template::{self, Kind, figure::Figure};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use std::collections::BTreeMap;
@@ -85,7 +85,7 @@ pub fn subjects(
     part: Part,
     count: usize,
     names: &[&str],
-) -> Result<Vec<Subject>, super::SynthError> {
+) -> Result<Vec<Subject>, crate::SynthError> {
     let list: &[(&str, Kind)] = match part {
         Part::Development => &[
             ("generic pig", Kind::Pig),
@@ -133,7 +133,7 @@ fn generic_postures(
     count: usize,
     seed: u64,
     rng: &mut ChaCha8Rng,
-) -> Result<Vec<Posture>, super::SynthError> {
+) -> Result<Vec<Posture>, crate::SynthError> {
     let other = template::build(kind, 8_000);
     let shape: BTreeMap<String, f64> = match kind {
         Kind::Pig => [
@@ -182,7 +182,7 @@ fn outside_postures(
     count: usize,
     seed: u64,
     rng: &mut ChaCha8Rng,
-) -> Result<Vec<Posture>, super::SynthError> {
+) -> Result<Vec<Posture>, crate::SynthError> {
     let booth = name.strip_prefix("booth ");
     let mesh_name = match booth {
         Some("man") => "human",
@@ -190,9 +190,9 @@ fn outside_postures(
         None => name,
     };
     let subject = devset::load(mesh_name)?;
-    let marks = super::semantic::marks_of(mesh_name)?;
-    let rest_front = super::semantic::rest_front(&subject, &marks)
-        .ok_or_else(|| super::SynthError::NoFront(name.to_string()))?;
+    let marks = crate::semantic::marks_of(mesh_name)?;
+    let rest_front = crate::semantic::rest_front(&subject, &marks)
+        .ok_or_else(|| crate::SynthError::NoFront(name.to_string()))?;
     let poses: Vec<Vec<V3>> = if booth.is_some() {
         posing::stand(&subject, rest_front, &posing::Stance::ALL)?
     } else {
@@ -238,8 +238,13 @@ fn scanned(
     front: V3,
     seed: u64,
 ) -> Posture {
-    let (scan, _) =
-        super::cases::scan_subject(posed, &[0.0, 90.0, 180.0, 270.0], 60_000, 0.002, seed);
+    let (scan, _) = conformd::synth::cases::scan_subject(
+        posed,
+        &[0.0, 90.0, 180.0, 270.0],
+        60_000,
+        0.002,
+        seed,
+    );
     let (template_landmarks, scan_landmarks) = landmark_pairs(template, marks, &posed.vertices);
     Posture {
         scan,
