@@ -115,6 +115,9 @@ const STANDARD_BOUNDS: &Bounds = &[
     ("human turned, no landmarks", 0.26, 0.60, 0),
     ("hand posed, landmarks", 0.42, 0.78, 0),
     ("hand turned, no landmarks", 0.68, 1.65, 0),
+    // Spot, added 2026-12-08: 0.191% (p95 0.380%) and 0.195% (0.411%)
+    ("spot posed, landmarks", 0.24, 0.48, 0),
+    ("spot turned, no landmarks", 0.25, 0.52, 0),
 ];
 
 /// The harder set: development and validation parts, the landmark-free cases measured
@@ -650,6 +653,20 @@ const GENERIC_BOUNDS: &[(&str, f64, usize)] = &[
     ("generic body onto woman, large posture", 1.99, 0),
 ];
 
+/// Generic cases whose whole fit is known to be wrong, with why: the per-case test leaves
+/// them out (no bound would be honest), and a test of the right outcome that is expected
+/// to fail (`known_failure_the_pig_onto_spot_*`) shows when a change fixes them.
+const KNOWN_WRONG: &[(&str, &str)] = &[
+    (
+        "generic pig onto spot, posed",
+        "fitted backwards (snout at the tail, 40.5%); with the front known 23%, its legs in the big head",
+    ),
+    (
+        "generic pig onto spot, large posture",
+        "fitted backwards (40.7%); with the front known 24%, its legs in the big head",
+    ),
+];
+
 /// Generic cases known to end with limb ends on another limb, with why: the per-case test
 /// holds their mean and leaves their limbs to a test of the right outcome that is
 /// expected to fail (`known_failure_*` below), so that a fix shows as that test failing.
@@ -670,6 +687,9 @@ fn generic_templates_onto_outside_subjects_hold_per_case() {
     for part in [devset::Part::Development, devset::Part::Validation] {
         for c in semantic::generic_cases(part, &[]).unwrap() {
             assert!(c.marks.len() >= 7, "{}: {} marks", c.name, c.marks.len());
+            if KNOWN_WRONG.iter().any(|k| k.0 == c.name) {
+                continue;
+            }
             let r = c.conform(&c.options(&opts)).unwrap();
             let s = c.score(&r.mesh.vertices);
             let &(_, mean, wrong) = GENERIC_BOUNDS
@@ -716,6 +736,28 @@ fn known_failure_the_man_posed_has_no_limb_end_on_another_limb() {
     assert!(
         s.wrong_limb.is_empty(),
         "{name}: on another limb {:?}",
+        s.wrong_limb
+    );
+}
+
+/// The right outcome for the generic pig onto Spot posed (a cartoon cow: short legs, a
+/// head as big as its body, sitting on the front legs), known to fail: the development
+/// set's usual quality, a mean under 5% and no hoof on another limb.
+#[test]
+#[should_panic(expected = "generic pig onto spot, posed: mean")]
+fn known_failure_the_pig_onto_spot_fits_as_the_koala_does() {
+    let name = KNOWN_WRONG[0].0;
+    let c = conformd_devset::semantic::generic_cases(devset::Part::Development, &["spot"])
+        .unwrap()
+        .into_iter()
+        .find(|c| c.name == name)
+        .unwrap();
+    let r = c.conform(&c.options(&ConformOptions::default())).unwrap();
+    let s = c.score(&r.mesh.vertices);
+    assert!(
+        s.mean < 0.05 && s.wrong_limb.is_empty(),
+        "{name}: mean {:.2}%, on another limb {:?}",
+        s.mean * 100.0,
         s.wrong_limb
     );
 }

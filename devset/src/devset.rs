@@ -58,6 +58,11 @@ pub const MESHES: &[DevMesh] = &[
         traits: "four-legged, horns, 10.8k vertices",
     },
     DevMesh {
+        name: "spot",
+        file: "spot.obj",
+        traits: "four-legged cartoon cow: short legs, big head on the front legs, 11.5k even vertices",
+    },
+    DevMesh {
         name: "koala-dense",
         file: "koala_dense.obj",
         traits: "four-legged, 50k vertices",

@@ -172,8 +172,8 @@ pub fn marks_of(mesh_name: &str) -> Result<Vec<(String, u32)>, SynthError> {
 
 /// The generic templates onto outside subjects, posed twice (the development set's
 /// posture and the harder set's large one), each to its own heading: the pig onto the
-/// koala and the body onto the man (development), the pig onto the cow and the body onto
-/// the woman (validation, never tuned on).
+/// koala and onto Spot, the body onto the man (development), the pig onto the cow and
+/// the body onto the woman (validation, never tuned on).
 pub fn generic_cases(part: Part, names: &[&str]) -> Result<Vec<SemanticCase>, SynthError> {
     generic_cases_turned(part, names, 0.0)
 }
@@ -187,7 +187,11 @@ pub fn generic_cases_turned(
     turn: f64,
 ) -> Result<Vec<SemanticCase>, SynthError> {
     let subjects: &[(&str, Kind)] = match part {
-        Part::Development => &[("koala", Kind::Pig), ("human", Kind::Body)],
+        Part::Development => &[
+            ("koala", Kind::Pig),
+            ("human", Kind::Body),
+            ("spot", Kind::Pig),
+        ],
         Part::Validation => &[("cow", Kind::Pig), ("woman", Kind::Body)],
     };
     let mut out = Vec::new();
