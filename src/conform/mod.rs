@@ -1092,11 +1092,7 @@ fn finish(
         (s / p.names.len() as f64).sqrt()
     });
     times.total = t_start.elapsed().as_secs_f64();
-    if let Some(i) = mesh
-        .vertices
-        .iter()
-        .position(|p| !p.iter().all(|c| c.is_finite()))
-    {
+    if let Some(i) = mesh.first_non_finite() {
         return Err(ConformError::Numerical(format!(
             "vertex {i} of the result is not a finite point"
         )));

@@ -224,15 +224,18 @@ impl Mesh {
         }
     }
 
+    /// The first vertex with a coordinate that is not finite (NaN or infinite).
+    pub fn first_non_finite(&self) -> Option<usize> {
+        self.vertices
+            .iter()
+            .position(|v| !v.iter().all(|c| c.is_finite()))
+    }
+
     /// Checks that every index is in range and every coordinate finite; `what` names the
     /// mesh in the error.
     pub fn validate(&self, what: &str) -> Result<(), MeshError> {
         let n = self.vertices.len() as u32;
-        if let Some(index) = self
-            .vertices
-            .iter()
-            .position(|v| !v.iter().all(|c| c.is_finite()))
-        {
+        if let Some(index) = self.first_non_finite() {
             return Err(MeshError::NonFinite {
                 what: what.to_string(),
                 index,

@@ -62,11 +62,7 @@ fn check_samples(samples: &[(String, Mesh)]) -> Result<(), ModelError> {
                 first: first_name.clone(),
             });
         }
-        if let Some(v) = m
-            .vertices
-            .iter()
-            .position(|p| !p.iter().all(|c| c.is_finite()))
-        {
+        if let Some(v) = m.first_non_finite() {
             return Err(ModelError::NotFinite {
                 name: name.clone(),
                 vertex: v,

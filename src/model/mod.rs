@@ -262,11 +262,7 @@ impl ShapeModel {
                 detail: "its triangles differ".into(),
             });
         }
-        if let Some(v) = mesh
-            .vertices
-            .iter()
-            .position(|p| !p.iter().all(|c| c.is_finite()))
-        {
+        if let Some(v) = mesh.first_non_finite() {
             return Err(ModelError::NotFinite {
                 name: name.into(),
                 vertex: v,
