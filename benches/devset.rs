@@ -364,6 +364,10 @@ fn generic(opts: &ConformOptions, only: &[&str], pictures: Option<&std::path::Pa
         );
         print_marks(&s);
         print_fold_repair(&r.report);
+        // what a station would flag for an operator's look
+        if let Some(w) = conformd::conform::placement_warning(&r.report.global) {
+            println!("  flagged for review: {w}");
+        }
         if let conformd::conform::GlobalReport::Automatic(a) = &r.report.global {
             eprintln!(
                 "  alignment: {} candidates, residual {:.4} (runner-up {:?}), {} fitted, kept {}; limbs turned {:?}",

@@ -762,6 +762,26 @@ fn known_failure_the_pig_onto_spot_fits_as_the_koala_does() {
     );
 }
 
+/// While the pig onto Spot is fitted backwards, the station must not pass it silently:
+/// the two placements' rig fits score alike, and the result is flagged for review.
+#[test]
+fn the_backwards_pig_onto_spot_is_flagged_for_review() {
+    let c = conformd_devset::semantic::generic_cases(devset::Part::Development, &["spot"])
+        .unwrap()
+        .into_iter()
+        .find(|c| c.name == KNOWN_WRONG[0].0)
+        .unwrap();
+    let r = c.conform(&c.options(&ConformOptions::default())).unwrap();
+    let warning = conformd::conform::placement_warning(&r.report.global);
+    assert!(
+        warning
+            .as_deref()
+            .is_some_and(|w| w.contains("check which way the result faces")),
+        "{}: no review flag ({warning:?})",
+        c.name
+    );
+}
+
 /// The generic body onto people in a booth's stances (`semantic::booth_cases`: the arms
 /// turned at the shoulders, which the generic set never does), the booth's front known as
 /// a booth knows it: (case, mean semantic error %). Bounds 1.25x the figures measured
