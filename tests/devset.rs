@@ -719,6 +719,24 @@ fn generic_templates_onto_outside_subjects_hold_per_case() {
     assert!(failures.is_empty(), "{failures:#?}");
 }
 
+/// The generic case `name` of development subject `subject`, and its fit as a station
+/// makes it (up axis known, no landmarks).
+fn development_generic_fit(
+    subject: &str,
+    name: &str,
+) -> (
+    conformd_devset::semantic::SemanticCase,
+    conformd::conform::Conformed,
+) {
+    let c = conformd_devset::semantic::generic_cases(devset::Part::Development, &[subject])
+        .unwrap()
+        .into_iter()
+        .find(|c| c.name == name)
+        .unwrap();
+    let r = c.conform(&c.options(&ConformOptions::default())).unwrap();
+    (c, r)
+}
+
 /// The right outcome for the man posed (no limb end on another limb), known to fail:
 /// when a change fixes it, this test fails saying so, and the case leaves
 /// `KNOWN_ON_ANOTHER_LIMB`.
@@ -726,12 +744,7 @@ fn generic_templates_onto_outside_subjects_hold_per_case() {
 #[should_panic(expected = "on another limb")]
 fn known_failure_the_man_posed_has_no_limb_end_on_another_limb() {
     let name = KNOWN_ON_ANOTHER_LIMB[0].0;
-    let c = conformd_devset::semantic::generic_cases(devset::Part::Development, &["human"])
-        .unwrap()
-        .into_iter()
-        .find(|c| c.name == name)
-        .unwrap();
-    let r = c.conform(&c.options(&ConformOptions::default())).unwrap();
+    let (c, r) = development_generic_fit("human", name);
     let s = c.score(&r.mesh.vertices);
     assert!(
         s.wrong_limb.is_empty(),
@@ -747,12 +760,7 @@ fn known_failure_the_man_posed_has_no_limb_end_on_another_limb() {
 #[should_panic(expected = "generic pig onto spot, posed: mean")]
 fn known_failure_the_pig_onto_spot_fits_as_the_koala_does() {
     let name = KNOWN_WRONG[0].0;
-    let c = conformd_devset::semantic::generic_cases(devset::Part::Development, &["spot"])
-        .unwrap()
-        .into_iter()
-        .find(|c| c.name == name)
-        .unwrap();
-    let r = c.conform(&c.options(&ConformOptions::default())).unwrap();
+    let (c, r) = development_generic_fit("spot", name);
     let s = c.score(&r.mesh.vertices);
     assert!(
         s.mean < 0.05 && s.wrong_limb.is_empty(),
@@ -766,12 +774,7 @@ fn known_failure_the_pig_onto_spot_fits_as_the_koala_does() {
 /// the two placements' rig fits score alike, and the result is flagged for review.
 #[test]
 fn the_backwards_pig_onto_spot_is_flagged_for_review() {
-    let c = conformd_devset::semantic::generic_cases(devset::Part::Development, &["spot"])
-        .unwrap()
-        .into_iter()
-        .find(|c| c.name == KNOWN_WRONG[0].0)
-        .unwrap();
-    let r = c.conform(&c.options(&ConformOptions::default())).unwrap();
+    let (c, r) = development_generic_fit("spot", KNOWN_WRONG[0].0);
     let warning = conformd::conform::placement_warning(&r.report.global);
     assert!(
         warning
